@@ -1,0 +1,61 @@
+"""``softsim`` command group: logging verbosity, and the one place errors become exit codes."""
+
+import logging
+import sys
+
+import click
+
+from softsim import __version__
+from softsim.errors import SoftsimError
+
+from . import mesh as mesh_command
+from . import run as run_command
+
+EXIT_INTERRUPTED = 130
+
+
+class _EchoHandler(logging.Handler):
+    """Library log records as one line each on stderr: ``warning: ...``."""
+
+    def emit(self, record):
+        click.echo(f"{record.levelname.lower()}: {record.getMessage()}", err=True)
+
+
+class SoftsimGroup(click.Group):
+    """Turns library errors into one line on stderr and a non-zero exit code, never a traceback."""
+
+    def invoke(self, ctx):
+        try:
+            return super().invoke(ctx)
+        except SoftsimError as exc:
+            raise click.ClickException(str(exc)) from None
+        except KeyboardInterrupt:
+            click.echo("softsim: interrupted", err=True)
+            sys.exit(EXIT_INTERRUPTED)
+
+
+@click.group(cls=SoftsimGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.option("-v", "--verbose", count=True, help="More messages (repeatable).")
+@click.option("-q", "--quiet", is_flag=True, help="Only errors.")
+@click.version_option(__version__, prog_name="softsim")
+def cli(verbose, quiet):
+    """softsim: explicit FEM simulation of elastic solids from YAML scene files.
+
+    \b
+    Examples:
+      softsim run configs/cantilever.yaml -o cantilever.h5
+      softsim run configs/bouncing_cube.yaml --set material.youngs_modulus=5e5
+      softsim mesh configs/cantilever.yaml -o beam.vtu
+    """
+    logger = logging.getLogger("softsim")
+    logger.handlers[:] = [_EchoHandler()]
+    logger.propagate = False
+    logger.setLevel(logging.ERROR if quiet else logging.DEBUG if verbose > 1 else logging.INFO)
+
+
+cli.add_command(run_command.run)
+cli.add_command(mesh_command.mesh)
+
+
+def main():
+    cli(prog_name="softsim")

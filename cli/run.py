@@ -1,0 +1,53 @@
+"""``softsim run``: simulate a scene and write its frames to HDF5 (+ XDMF for ParaView)."""
+
+import logging
+import sys
+
+import click
+
+from softsim.config import load_scene
+from softsim.mesh import format_quality
+from softsim.simulation import prepare, simulate
+
+from .options import scene_argument, set_option
+
+log = logging.getLogger("softsim")
+
+
+def _progress_bar(total_steps):
+    """A tqdm bar on a terminal's stderr, or None when stderr is not a TTY."""
+    if not sys.stderr.isatty():
+        return None
+    from tqdm import tqdm
+
+    return tqdm(total=total_steps, unit="step", file=sys.stderr, leave=False, dynamic_ncols=True)
+
+
+@click.command()
+@scene_argument
+@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=str), default=None,
+              help="Output HDF5 file (default: the scene's output.path).")
+@set_option
+def run(scene, output, overrides):
+    """Simulate SCENE (a YAML scene file) and write its frames to an HDF5 file.
+
+    \b
+    Examples:
+      softsim run configs/cantilever.yaml
+      softsim run configs/cantilever.yaml -o stiff.h5 --set material.youngs_modulus=2e11
+    """
+    scene_config = load_scene(scene, overrides)
+    prepared = prepare(scene_config)
+    log.info("mesh: %s", format_quality(prepared.mesh.quality()))
+    plan = prepared.plan
+    log.info("dt = %.4g s (stable-step estimate %.4g s), %d steps, %d frames",
+             plan.dt, prepared.dt_estimate, plan.total_steps, len(plan.frame_steps))
+    bar = _progress_bar(plan.total_steps)
+    update = None if bar is None else (lambda done, total: bar.update(done - bar.n))
+    try:
+        summary = simulate(prepared, output or scene_config.output.path, update)
+    finally:
+        if bar is not None:
+            bar.close()
+    click.echo(f"{summary.path}: {summary.steps} steps, dt {summary.dt:.4g} s, {summary.frames} frames, "
+               f"wall {summary.wall_time_s:.2f} s, {summary.tet_steps_per_s / 1e6:.2f} M tet-steps/s")

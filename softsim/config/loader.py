@@ -1,0 +1,308 @@
+"""Read a scene file: YAML -> overrides -> validation -> resolved mesh path.
+
+Every problem becomes a one-line ``ConfigError`` that names the key path (``fixed[0].min``), the
+offending value and what is allowed.  Nothing here prints or exits.
+"""
+
+from __future__ import annotations
+
+import copy
+import os
+import re
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import Any, Union
+
+import yaml
+from pydantic import ValidationError
+
+from ..errors import ConfigError
+from .schema import NO_VALUE, SECTION_NAMES, Scene
+
+# At most this many validation problems are joined into one message.
+_MAX_REPORTED = 3
+# Longer shown values are cut to this many characters.
+_MAX_VALUE_CHARS = 60
+
+_MAPPING_REQUIRED = (
+    "the scene must be a mapping with sections " + ", ".join(SECTION_NAMES)
+    + " (mesh and material are required)"
+)
+
+
+# ---------------------------------------------------------------------------------------------
+# YAML
+
+
+# YAML 1.2 style floats: 1e6, 2.0e11, -3E-4, .5, 1., plus .inf/.nan (rejected later by the schema).
+_FLOAT_RE = re.compile(
+    r"""^(?:[-+]?(?:[0-9][0-9_]*)?\.[0-9][0-9_]*(?:[eE][-+]?[0-9]+)?
+        |[-+]?[0-9][0-9_]*\.(?:[eE][-+]?[0-9]+)?
+        |[-+]?[0-9][0-9_]*[eE][-+]?[0-9]+
+        |[-+]?\.(?:inf|Inf|INF)
+        |\.(?:nan|NaN|NAN))$""",
+    re.X,
+)
+_FLOAT_TAG = "tag:yaml.org,2002:float"
+
+
+class SceneLoader(yaml.SafeLoader):
+    """``yaml.SafeLoader`` that reads ``1e6`` as a float and rejects duplicate keys.
+
+    PyYAML follows YAML 1.1, where a float needs a dot (``1.0e+6``); scene files use the YAML 1.2
+    spelling.  ``yes``/``no``/``on``/``off`` stay booleans (the schema rejects them as numbers).
+    """
+
+    def construct_mapping(self, node, deep=False):
+        """Build a mapping, refusing a key that appears twice (PyYAML keeps the last silently)."""
+        seen = set()
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=True)
+            try:
+                duplicate = key in seen
+            except TypeError:
+                continue  # unhashable: the base class reports it
+            if duplicate:
+                raise yaml.constructor.ConstructorError(
+                    "while constructing a mapping", node.start_mark,
+                    f"found duplicate key {key!r}", key_node.start_mark,
+                )
+            seen.add(key)
+        return super().construct_mapping(node, deep=deep)
+
+
+def _install_float_resolver() -> None:
+    """Replace the inherited YAML 1.1 float resolver of ``SceneLoader`` by ``_FLOAT_RE``."""
+    resolvers = {
+        first: [(tag, regexp) for tag, regexp in entries if tag != _FLOAT_TAG]
+        for first, entries in yaml.SafeLoader.yaml_implicit_resolvers.items()
+    }
+    SceneLoader.yaml_implicit_resolvers = resolvers
+    SceneLoader.add_implicit_resolver(_FLOAT_TAG, _FLOAT_RE, list("-+0123456789."))
+
+
+_install_float_resolver()
+
+
+def _one_line(text: str) -> str:
+    """Collapse whitespace (PyYAML messages span several lines)."""
+    return " ".join(str(text).split())
+
+
+def _yaml_error_message(error: yaml.YAMLError, where: str) -> str:
+    """One line: ``<where>: invalid YAML at line L, column C: <problem>``."""
+    mark = getattr(error, "problem_mark", None) or getattr(error, "context_mark", None)
+    problem = getattr(error, "problem", None)
+    if mark is not None:
+        context = getattr(error, "context", None)
+        detail = _one_line(": ".join(part for part in (context, problem) if part))
+        return f"{where}: invalid YAML at line {mark.line + 1}, column {mark.column + 1}: {detail}"
+    return f"{where}: invalid YAML: {_one_line(error)}"
+
+
+def _read_yaml(path: Path) -> Any:
+    """Parse the scene file ``path`` with ``SceneLoader``."""
+    try:
+        with open(path, "rb") as stream:
+            return yaml.load(stream, Loader=SceneLoader)
+    except FileNotFoundError:
+        raise ConfigError(f"scene file not found: {path}") from None
+    except OSError as error:
+        raise ConfigError(f"cannot read scene file {path}: {error.strerror or error}") from None
+    except yaml.YAMLError as error:
+        raise ConfigError(_yaml_error_message(error, str(path))) from None
+
+
+# ---------------------------------------------------------------------------------------------
+# Overrides
+
+
+def apply_overrides(data: Mapping, overrides: Iterable[str]) -> dict:
+    """A copy of ``data`` with each ``"dotted.key=value"`` override applied in order.
+
+    The value is parsed with ``SceneLoader`` (``1e6`` -> float, ``[1, 2, 3]`` -> list, empty ->
+    null).  Missing intermediate keys (or null ones) become new mappings; a path through a list or
+    scalar is an error.
+    """
+    result = copy.deepcopy(dict(data))
+    if isinstance(overrides, str):
+        overrides = (overrides,)
+    for override in overrides:
+        keys, value = _parse_override(override)
+        _set_path(result, keys, value, override)
+    return result
+
+
+def _parse_override(override: Any) -> tuple[list[str], Any]:
+    """``"a.b=1e6"`` -> ``(["a", "b"], 1000000.0)``."""
+    if not isinstance(override, str) or "=" not in override:
+        raise ConfigError(
+            f"override {override!r}: must look like key.path=value, e.g. material.density=1200"
+        )
+    path, text = override.split("=", 1)
+    keys = [key.strip() for key in path.split(".")]
+    if not all(keys):
+        raise ConfigError(f"override {override!r}: the key path {path.strip()!r} has an empty part")
+    try:
+        value = yaml.load(text, Loader=SceneLoader)
+    except yaml.YAMLError as error:
+        raise ConfigError(_yaml_error_message(error, f"override {override!r}")) from None
+    return keys, value
+
+
+def _set_path(data: dict, keys: list[str], value: Any, override: str) -> None:
+    """Set ``data[k0][k1]...[kn] = value``, creating mappings on the way."""
+    node = data
+    for depth, key in enumerate(keys[:-1]):
+        child = node.get(key)
+        if child is None:
+            child = node[key] = {}
+        elif isinstance(child, Mapping):
+            child = node[key] = dict(child)
+        else:
+            where = ".".join(keys[: depth + 1])
+            raise ConfigError(
+                f"override {override!r}: {where} is {_show(child)}, not a mapping, "
+                f"so it has no key {keys[depth + 1]!r}"
+            )
+        node = child
+    node[keys[-1]] = value
+
+
+# ---------------------------------------------------------------------------------------------
+# Validation errors -> one line
+
+
+def _show(value: Any) -> str:
+    """A short, YAML-flavoured rendering of an offending value."""
+    if value is None:
+        text = "null"
+    elif isinstance(value, bool):
+        text = "true" if value else "false"
+    elif isinstance(value, tuple):
+        text = repr(list(value))
+    else:
+        text = repr(value)
+    if len(text) > _MAX_VALUE_CHARS:
+        text = text[: _MAX_VALUE_CHARS - 3] + "..."
+    return text
+
+
+def _dotted(loc: Iterable[Any]) -> str:
+    """``("fixed", 0, "min")`` -> ``"fixed[0].min"``."""
+    text = ""
+    for part in loc:
+        if isinstance(part, int):
+            text += f"[{part}]"
+        else:
+            text += f".{part}" if text else str(part)
+    return text
+
+
+def _error_line(error: dict) -> str:
+    """One pydantic error dict as ``path = value: what is allowed``."""
+    loc = tuple(error.get("loc", ()))
+    ctx = error.get("ctx") or {}
+    kind = error.get("type")
+    if kind == "softsim":
+        if "softsim_key" in ctx:
+            loc += (ctx["softsim_key"],)
+        value = ctx.get("softsim_value", error.get("input"))
+        message = ctx["softsim_message"]
+    elif kind == "missing":
+        return f"{_dotted(loc)}: " + (
+            "required section missing" if len(loc) == 1 else "required key missing"
+        )
+    elif kind == "extra_forbidden":
+        return f"{_dotted(loc)}: unknown key"
+    else:  # a pydantic check the schema does not wrap (should not happen)
+        value = error.get("input")
+        message = _one_line(error.get("msg", "invalid value")).removeprefix("Value error, ")
+    path = _dotted(loc) or "scene"
+    if value is NO_VALUE:
+        return f"{path}: {message}"
+    return f"{path} = {_show(value)}: {message}"
+
+
+def validation_message(error: ValidationError) -> str:
+    """The first few problems of ``error`` joined into one line."""
+    problems = error.errors(include_url=False)
+    lines = [_error_line(problem) for problem in problems[:_MAX_REPORTED]]
+    extra = len(problems) - _MAX_REPORTED
+    if extra > 0:
+        lines.append(f"and {extra} more problem{'s' if extra > 1 else ''}")
+    return "; ".join(lines)
+
+
+# ---------------------------------------------------------------------------------------------
+# Public API
+
+
+def parse_scene(data: Any, base_dir: Union[str, Path] = ".") -> Scene:
+    """Validate a raw scene mapping; ``mesh.file`` is resolved against ``base_dir`` and checked."""
+    if not isinstance(data, Mapping):
+        raise ConfigError(f"{_MAPPING_REQUIRED}; got {_show(data)}")
+    try:
+        scene = Scene.model_validate(data)
+    except ValidationError as error:
+        raise ConfigError(validation_message(error)) from None
+    return _resolve_mesh_file(scene, Path(base_dir))
+
+
+def load_scene(path: Union[str, Path], overrides: Iterable[str] = ()) -> Scene:
+    """Read, override and validate the scene file ``path``.
+
+    ``overrides`` are ``"dotted.key=value"`` strings applied to the raw YAML before validation.
+    A relative ``mesh.file`` is taken relative to the scene file's directory.
+    """
+    path = Path(path)
+    data = _read_yaml(path)
+    if not isinstance(data, Mapping):
+        got = "an empty file" if data is None else _show(data)
+        raise ConfigError(f"{path}: {_MAPPING_REQUIRED}; got {got}")
+    data = apply_overrides(data, overrides)
+    return parse_scene(data, base_dir=path.absolute().parent)
+
+
+class _SceneDumper(yaml.SafeDumper):
+    """Block-style mappings, with lists of plain values (vectors, rows) written inline."""
+
+
+def _represent_list(dumper: yaml.SafeDumper, items: list) -> yaml.Node:
+    inline = all(not isinstance(item, (list, dict)) for item in items)
+    return dumper.represent_sequence("tag:yaml.org,2002:seq", items, flow_style=inline)
+
+
+_SceneDumper.add_representer(list, _represent_list)
+
+
+def scene_to_yaml(scene: Scene) -> str:
+    """The fully resolved scene (every default filled in) as YAML text.
+
+    Mesh keys that do not apply to the shape (``None``) are left out; everything else is written,
+    so ``parse_scene(yaml.load(text, Loader=SceneLoader)) == scene``.
+    """
+    data = scene.model_dump(mode="json")
+    data["mesh"] = {key: value for key, value in data["mesh"].items() if value is not None}
+    return yaml.dump(data, Dumper=_SceneDumper, sort_keys=False, allow_unicode=True)
+
+
+def _resolve_mesh_file(scene: Scene, base_dir: Path) -> Scene:
+    """``scene`` with ``mesh.file`` made absolute; the file must exist and be readable."""
+    given = scene.mesh.file
+    if given is None:
+        return scene
+    resolved = os.path.abspath(os.path.join(base_dir, os.path.expanduser(given)))
+    if not os.path.isfile(resolved):
+        what = "is not a file" if os.path.exists(resolved) else "not found"
+        raise ConfigError(f"mesh.file = {given!r}: mesh file {what} (looked for {resolved})")
+    try:
+        with open(resolved, "rb"):
+            pass
+    except OSError as error:
+        raise ConfigError(
+            f"mesh.file = {given!r}: mesh file {resolved} is not readable "
+            f"({error.strerror or error})"
+        ) from None
+    mesh = scene.mesh.model_copy(update={"file": resolved})
+    return scene.model_copy(update={"mesh": mesh})

@@ -1,0 +1,26 @@
+"""Exceptions raised by softsim.
+
+The library raises these; only the command line turns them into a one-line message and an exit
+code.  Each message is complete on its own: it names the key or file, the value, and what is
+allowed.
+"""
+
+
+class SoftsimError(Exception):
+    """Base class of every error softsim raises on purpose."""
+
+
+class ConfigError(SoftsimError):
+    """A scene file or an override is invalid (unknown key, wrong type, value out of range)."""
+
+
+class MeshError(SoftsimError):
+    """A mesh cannot be simulated (unreadable, no tetrahedra, degenerate or tangled elements)."""
+
+
+class MissingDependencyError(SoftsimError):
+    """An optional Python extra or a system library needed for this command is not installed."""
+
+
+class SimulationError(SoftsimError):
+    """A run could not go on (e.g. the output file cannot be written)."""

@@ -1,0 +1,66 @@
+"""Time-step choice: a stable step estimate and the plan of steps and frames."""
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..materials.lame import lame_parameters
+
+# dt = AUTO_SAFETY x the estimate below.  The estimate (smallest altitude over the dilatational
+# wave speed) can overshoot symplectic Euler's true limit on structured meshes (0.94x measured on a
+# structured steel beam), so the factor keeps a margin of 2 below it.
+AUTO_SAFETY = 0.5
+
+
+def dilatational_wave_speed(youngs_modulus, poissons_ratio, density):
+    """``c_p = sqrt((lambda + 2 mu) / rho)`` [m/s], the fastest wave of linear elasticity."""
+    lam, mu = lame_parameters(youngs_modulus, poissons_ratio)
+    return math.sqrt((lam + 2.0 * mu) / density)
+
+
+def stable_step_estimate(min_altitude, wave_speed, contact_stiffness=None, mass=None):
+    """Estimate of the largest stable step [s].
+
+    Elastic part: ``h_min / c_p`` (min_altitude [m], wave_speed [m/s]).  Ground contact: a vertex
+    of mass m on a penalty spring k oscillates at ``omega = sqrt(k / m)`` and symplectic Euler needs
+    ``dt < 2 / omega``; the two limits are combined as ``1/dt^2 = 1/dt_el^2 + (omega_max / 2)^2``.
+    """
+    inverse_square = (wave_speed / min_altitude) ** 2
+    if contact_stiffness is not None:
+        omega_squared = np.max(contact_stiffness / mass, initial=0.0)
+        inverse_square += omega_squared / 4.0
+    return 1.0 / math.sqrt(inverse_square)
+
+
+@dataclass(frozen=True)
+class TimePlan:
+    """Steps and frames of a run: frame ``j`` is written after ``frame_steps[j]`` steps."""
+
+    dt: float                 # [s]
+    total_steps: int
+    frame_steps: tuple        # step counts at which frames are written, starting with 0
+
+    @property
+    def frame_times(self):
+        return tuple(s * self.dt for s in self.frame_steps)
+
+
+def plan_time(duration, frame_interval, dt=None, dt_estimate=None):
+    """A ``TimePlan`` for ``duration`` [s] with a frame every ``frame_interval`` [s].
+
+    With ``dt`` None (``auto``), dt is the largest step not above ``AUTO_SAFETY * dt_estimate``
+    that fits a whole number of times into ``frame_interval``.  With a given ``dt``, frames fall
+    on the nearest whole number of steps to ``frame_interval``.  The last frame is at the end of
+    the run, ``total_steps * dt >= duration``.
+    """
+    if dt is None:
+        steps_per_frame = max(1, math.ceil(frame_interval / (AUTO_SAFETY * dt_estimate) - 1e-9))
+        dt = frame_interval / steps_per_frame
+    else:
+        steps_per_frame = max(1, round(frame_interval / dt))
+    total_steps = max(1, math.ceil(duration / dt - 1e-9))
+    frame_steps = list(range(0, total_steps + 1, steps_per_frame))
+    if frame_steps[-1] != total_steps:
+        frame_steps.append(total_steps)
+    return TimePlan(dt=float(dt), total_steps=total_steps, frame_steps=tuple(frame_steps))

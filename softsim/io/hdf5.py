@@ -1,0 +1,159 @@
+"""The run's HDF5 file: mesh once, frames appended as the run goes, status at the end.
+
+Layout (a public interface):
+
+- ``mesh/points`` (n, 3) rest positions [m], ``mesh/tets`` (m, 4), ``mesh/fixed`` (n,) bool
+- ``frames/time`` (k,) [s], ``frames/points`` (k, n, 3) [m]; optional ``frames/velocities``
+  (k, n, 3) [m/s]; ``frames/energy/{kinetic,elastic,gravity}`` (k,) [J]
+- ``state/``: ``positions``, ``velocities``, ``time``, ``step`` of the last complete frame
+- root attributes: ``config``, ``dt``, ``steps``, ``wall_time_s``, ``softsim_version``,
+  ``status`` (running | complete | interrupted | failed), ``status_reason``
+
+Plain HDF5 (default ``libver``), chunked resizable datasets, flushed after every frame: a file left
+by a killed run opens with plain ``h5py.File(path)`` and holds the frames written before.  An XDMF
+file beside it (``out.xdmf``) lets ParaView play the frames.
+"""
+
+import os
+import time as _time
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from .. import __version__
+from ..errors import SimulationError
+from .xdmf import write_xdmf
+
+ENERGY_TERMS = ("kinetic", "elastic", "gravity")
+STATUSES = ("running", "complete", "interrupted", "failed")
+# The XDMF is rewritten at most this often [s of wall time] while running, and always at the end.
+XDMF_REWRITE_INTERVAL_S = 1.0
+
+
+def xdmf_path_for(path):
+    """``out.h5`` -> ``out.xdmf`` (same folder)."""
+    return Path(path).with_suffix(".xdmf")
+
+
+def check_writable(path):
+    """Raise ``SimulationError`` if ``path``'s folder is missing or not writable (before any work)."""
+    folder = Path(path).resolve().parent
+    if not folder.is_dir():
+        raise SimulationError(f"output.path = '{path}': folder {folder} does not exist")
+    if not os.access(folder, os.W_OK):
+        raise SimulationError(f"output.path = '{path}': folder {folder} is not writable")
+    if Path(path).is_dir():
+        raise SimulationError(f"output.path = '{path}': is a directory, expected a file name like out.h5")
+
+
+class RunWriter:
+    """Context manager writing one run: ``append_frame`` per frame, ``finish`` with the status.
+
+    points (n, 3) [m], tets (m, 4), fixed (n,) bool: the mesh in the user's order.
+    fields: the optional per-frame fields asked for (``velocities``, ``energy``).
+    """
+
+    def __init__(self, path, points, tets, fixed, config_yaml, dt, steps, fields=(), xdmf=True):
+        self.path = Path(path)
+        self.fields = tuple(fields)
+        self.node_count = points.shape[0]
+        self.tet_count = tets.shape[0]
+        self.xdmf = xdmf
+        self._xdmf_written_at = -np.inf
+        self._started = _time.perf_counter()
+        try:
+            self.file = h5py.File(self.path, "w")
+        except OSError as exc:
+            raise SimulationError(f"output.path = '{path}': cannot create the file ({exc})") from None
+        f = self.file
+        f.attrs.update(config=config_yaml, dt=float(dt), steps=int(steps), wall_time_s=0.0,
+                       softsim_version=__version__, status="running", status_reason="")
+        mesh = f.create_group("mesh")
+        mesh.create_dataset("points", data=np.asarray(points, np.float64))
+        mesh.create_dataset("tets", data=np.asarray(tets, np.int64))
+        mesh.create_dataset("fixed", data=np.asarray(fixed, np.bool_))
+        frames = f.create_group("frames")
+        n = self.node_count
+        frames.create_dataset("time", shape=(0,), maxshape=(None,), dtype=np.float64, chunks=(1024,))
+        frames.create_dataset("points", shape=(0, n, 3), maxshape=(None, n, 3), dtype=np.float64, chunks=(1, n, 3))
+        if "velocities" in self.fields:
+            frames.create_dataset("velocities", shape=(0, n, 3), maxshape=(None, n, 3), dtype=np.float64,
+                                  chunks=(1, n, 3))
+        if "energy" in self.fields:
+            energy = frames.create_group("energy")
+            for term in ENERGY_TERMS:
+                energy.create_dataset(term, shape=(0,), maxshape=(None,), dtype=np.float64, chunks=(1024,))
+        state = f.create_group("state")
+        state.create_dataset("positions", shape=(n, 3), dtype=np.float64)
+        state.create_dataset("velocities", shape=(n, 3), dtype=np.float64)
+        state.attrs.update(time=0.0, step=0)
+        f.flush()
+
+    @property
+    def frame_count(self):
+        return self.file["frames/time"].shape[0]
+
+    def append_frame(self, time, step, points, velocities, energy=None):
+        """Append one frame and the resume state, then flush.
+
+        points, velocities: (n, 3) [m], [m/s] in the user's order; energy: dict of ENERGY_TERMS [J].
+        ``frames/time`` grows last, so its length counts only frames whose data is in place.
+        """
+        frames = self.file["frames"]
+        k = self.frame_count
+        _append(frames["points"], k, points)
+        if "velocities" in self.fields:
+            _append(frames["velocities"], k, velocities)
+        if "energy" in self.fields:
+            for term in ENERGY_TERMS:
+                _append(frames["energy"][term], k, energy[term])
+        state = self.file["state"]
+        state["positions"][...] = points
+        state["velocities"][...] = velocities
+        state.attrs.update(time=float(time), step=int(step))
+        _append(frames["time"], k, time)
+        self.file.attrs["wall_time_s"] = _time.perf_counter() - self._started
+        self.file.flush()
+        now = _time.perf_counter()
+        if now - self._xdmf_written_at >= XDMF_REWRITE_INTERVAL_S:
+            self._write_xdmf()
+            self._xdmf_written_at = now
+
+    def _write_xdmf(self):
+        if not self.xdmf:
+            return
+        point_fields = [("velocity", "frames/velocities")] if "velocities" in self.fields else []
+        write_xdmf(xdmf_path_for(self.path), self.path, self.node_count, self.tet_count,
+                   self.file["frames/time"][:], point_fields=point_fields)
+
+    def finish(self, status, reason=""):
+        """Record the final ``status`` and ``reason``, rewrite the XDMF, close the file."""
+        if status not in STATUSES:
+            raise ValueError(f"status must be one of {STATUSES}, got {status!r}")
+        if not self.file:
+            return
+        self.file.attrs.update(status=status, status_reason=reason,
+                               wall_time_s=_time.perf_counter() - self._started)
+        self.file.flush()
+        self._write_xdmf()
+        self.file.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, exc_type, exc, tb):
+        if self.file:
+            if exc_type is None:
+                self.finish("complete")
+            elif issubclass(exc_type, KeyboardInterrupt):
+                self.finish("interrupted", "interrupted by the user")
+            else:
+                self.finish("failed", f"{exc_type.__name__}: {exc}".splitlines()[0])
+        return False
+
+
+def _append(dataset, k, value):
+    """Grow ``dataset`` along axis 0 to ``k + 1`` and write ``value`` at row ``k``."""
+    dataset.resize(k + 1, axis=0)
+    dataset[k] = value

@@ -1,0 +1,164 @@
+"""The simulation model: everything about a scene that does not change during a run.
+
+``build_model`` turns a validated scene and its checked mesh into flat arrays in the internal
+(locality-renumbered) vertex order; ``initial_state`` makes the state at t = 0.  The time loop
+reads a ``Model`` and updates a ``State``.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .kernels.rest_state import lumped_masses, rest_state, vertex_tet_csr
+from .materials.models import MODEL_IDS, model_lame_parameters
+from .mesh import TetMesh
+from .mesh.checks import boundary_faces
+from .mesh.reorder import renumber_for_locality
+
+AXIS_INDEX = {"x": 0, "y": 1, "z": 2}
+# Rest positions within this distance [m] of a box's faces count as inside it.
+BOX_TOLERANCE = 1e-12
+
+
+@dataclass(frozen=True)
+class Model:
+    """Rest state, material, constraints and loads, in internal vertex order (arrays: float64 unless said).
+
+    mesh: the checked mesh in the user's order (written to the output).
+    vertex_order: (n,) int64, internal vertex i is the user's vertex ``vertex_order[i]``.
+    rest_points: (n, 3) [m]; tets: (m, 4) int64; Dm_inv: (m, 3, 3) [1/m]; rest_volume: (m,) [m^3].
+    mass, inv_mass: (n,) [kg], [1/kg] lumped.
+    material_id: model id; lam, mu: the model's Lame parameters [Pa]; lame_hooke: (lambda, mu) of Hooke's law [Pa].
+    csr_offsets (n+1,), csr_slots (4m,): vertex -> (tet, corner) map.
+    boundary_faces: (b, 3) outward-wound faces; boundary_area: (n,) [m^2] a third of each adjacent face.
+    gravity: (3,) [m/s^2]; traction_force: (n, 3) [N] constant; external_accel: (n, 3) = gravity + traction / m.
+    held: (n, 3) bool; held_velocity: (n, 3) [m/s].
+    has_ground, ground_height [m], ground_friction, contact_stiffness (n,) [N/m] = stiffness [Pa/m] x boundary area.
+    """
+
+    mesh: TetMesh
+    vertex_order: np.ndarray
+    rest_points: np.ndarray
+    tets: np.ndarray
+    Dm_inv: np.ndarray
+    rest_volume: np.ndarray
+    mass: np.ndarray
+    inv_mass: np.ndarray
+    material_id: int
+    lam: float
+    mu: float
+    csr_offsets: np.ndarray
+    csr_slots: np.ndarray
+    boundary_faces: np.ndarray
+    boundary_area: np.ndarray
+    gravity: np.ndarray
+    traction_force: np.ndarray
+    external_accel: np.ndarray
+    held: np.ndarray
+    held_velocity: np.ndarray
+    has_ground: bool
+    ground_height: float
+    ground_friction: float
+    contact_stiffness: np.ndarray
+
+    @property
+    def node_count(self):
+        return self.rest_points.shape[0]
+
+    @property
+    def tet_count(self):
+        return self.tets.shape[0]
+
+    def to_user_order(self, a):
+        """``a`` (n, ...) in internal order, re-indexed to the user's vertex order."""
+        out = np.empty_like(a)
+        out[self.vertex_order] = a
+        return out
+
+    def from_user_order(self, a):
+        """``a`` (n, ...) in the user's vertex order, re-indexed to internal order."""
+        return np.ascontiguousarray(a[self.vertex_order])
+
+
+@dataclass
+class State:
+    """Positions x (n, 3) [m] and velocities v (n, 3) [m/s] in internal order, after ``step`` steps."""
+
+    x: np.ndarray
+    v: np.ndarray
+    step: int
+    held_start: np.ndarray   # (n, 3) [m] positions of held components at t = 0
+
+
+def in_box(points, lo, hi):
+    """Bool mask (n,) of ``points`` (n, 3) inside the closed box [lo, hi] (with BOX_TOLERANCE)."""
+    lo = np.asarray(lo) - BOX_TOLERANCE
+    hi = np.asarray(hi) + BOX_TOLERANCE
+    return np.all((points >= lo) & (points <= hi), axis=1)
+
+
+def face_areas(points, faces):
+    """Areas [m^2] of triangles ``faces`` (b, 3) of ``points``."""
+    p = points[faces]
+    return 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+
+
+def build_model(scene, mesh):
+    """The ``Model`` of a validated scene (``softsim.config.Scene``) on its checked ``mesh``."""
+    points, tets, vertex_order, _ = renumber_for_locality(mesh.points, mesh.tets)
+    n = points.shape[0]
+    material = scene.material
+    Dm_inv, rest_volume = rest_state(points, tets)
+    mass = lumped_masses(tets, rest_volume, material.density, n)
+    lam, mu = model_lame_parameters(material.model, material.youngs_modulus, material.poissons_ratio)
+    offsets, slots = vertex_tet_csr(tets, n)
+
+    faces = boundary_faces(tets, mesh.source)
+    areas = face_areas(points, faces)
+    boundary_area = np.zeros(n)
+    np.add.at(boundary_area, faces.ravel(), np.repeat(areas / 3.0, 3))
+
+    traction_force = np.zeros((n, 3))
+    for load in scene.tractions:
+        on_face = in_box(points, load.min, load.max)[faces].all(axis=1)
+        np.add.at(traction_force, faces[on_face].ravel(),
+                  np.repeat(areas[on_face] / 3.0, 3)[:, None] * np.asarray(load.traction))
+    gravity = np.asarray(scene.gravity, dtype=np.float64)
+    external_accel = gravity[None, :] + traction_force / mass[:, None]
+
+    held = np.zeros((n, 3), dtype=np.bool_)
+    held_velocity = np.zeros((n, 3))
+    for box in scene.fixed:
+        inside = in_box(points, box.min, box.max)
+        for axis in box.axes:
+            k = AXIS_INDEX[axis]
+            held[inside, k] = True
+            held_velocity[inside, k] = box.velocity[k]
+
+    ground = scene.ground
+    return Model(
+        mesh=mesh, vertex_order=vertex_order, rest_points=points, tets=tets, Dm_inv=Dm_inv,
+        rest_volume=rest_volume, mass=mass, inv_mass=1.0 / mass, material_id=MODEL_IDS[material.model],
+        lam=float(lam), mu=float(mu), csr_offsets=offsets, csr_slots=slots, boundary_faces=faces,
+        boundary_area=boundary_area, gravity=gravity, traction_force=traction_force,
+        external_accel=np.ascontiguousarray(external_accel), held=held, held_velocity=held_velocity,
+        has_ground=ground is not None,
+        ground_height=float(ground.height) if ground is not None else 0.0,
+        ground_friction=float(ground.friction) if ground is not None else 0.0,
+        contact_stiffness=(ground.stiffness * boundary_area) if ground is not None else np.zeros(n),
+    )
+
+
+def initial_state(scene, model):
+    """State at t = 0: ``x = A X + b``; ``v = v0 + omega x (x - c)`` with c the centre of mass.
+
+    Held components start at ``A X + b`` too and move with their prescribed velocity.
+    """
+    A = np.asarray(scene.initial_deformation.matrix, dtype=np.float64)
+    b = np.asarray(scene.initial_deformation.translation, dtype=np.float64)
+    x = model.rest_points @ A.T + b
+    centroid = (model.mass[:, None] * x).sum(axis=0) / model.mass.sum()
+    omega = np.asarray(scene.angular_velocity, dtype=np.float64)
+    v = np.asarray(scene.initial_velocity, dtype=np.float64) + np.cross(omega, x - centroid)
+    v = np.where(model.held, model.held_velocity, v)
+    return State(x=np.ascontiguousarray(x), v=np.ascontiguousarray(v), step=0, held_start=x.copy())
