@@ -1,6 +1,7 @@
 """``softsim mesh``: mesh a scene's solid and write it (any format meshio writes, e.g. .vtu)."""
 
 import logging
+from pathlib import Path
 
 import click
 
@@ -28,7 +29,11 @@ def mesh(scene, output, overrides):
     """
     import meshio
 
-    tet_mesh = build_mesh(load_scene(scene, overrides).mesh)
+    scene_config = load_scene(scene, overrides)
+    folder = Path(output).resolve().parent
+    if not folder.is_dir():   # before meshing: a bad path costs no work
+        raise SoftsimError(f"--output = '{output}': folder {folder} does not exist")
+    tet_mesh = build_mesh(scene_config.mesh)
     log.info("mesh: %s", format_quality(tet_mesh.quality()))
     try:
         meshio.write(output, meshio.Mesh(tet_mesh.points, [("tetra", tet_mesh.tets)]))

@@ -6,6 +6,7 @@ import sys
 import click
 
 from softsim.config import load_scene
+from softsim.io.hdf5 import check_writable
 from softsim.mesh import format_quality
 from softsim.simulation import prepare, simulate
 
@@ -25,7 +26,7 @@ def _progress_bar(total_steps):
 
 @click.command()
 @scene_argument
-@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=str), default=None,
+@click.option("-o", "--output", type=click.Path(path_type=str), default=None,
               help="Output HDF5 file (default: the scene's output.path).")
 @set_option
 def run(scene, output, overrides):
@@ -37,6 +38,10 @@ def run(scene, output, overrides):
       softsim run configs/cantilever.yaml -o stiff.h5 --set material.youngs_modulus=2e11
     """
     scene_config = load_scene(scene, overrides)
+    if output is not None:   # the stored config says where the run really went
+        scene_config = scene_config.model_copy(
+            update={"output": scene_config.output.model_copy(update={"path": output})})
+    check_writable(scene_config.output.path)   # before meshing: a bad path costs no work
     prepared = prepare(scene_config)
     log.info("mesh: %s", format_quality(prepared.mesh.quality()))
     plan = prepared.plan
@@ -45,9 +50,9 @@ def run(scene, output, overrides):
     bar = _progress_bar(plan.total_steps)
     update = None if bar is None else (lambda done, total: bar.update(done - bar.n))
     try:
-        summary = simulate(prepared, output or scene_config.output.path, update)
+        summary = simulate(prepared, scene_config.output.path, update)
     finally:
         if bar is not None:
             bar.close()
     click.echo(f"{summary.path}: {summary.steps} steps, dt {summary.dt:.4g} s, {summary.frames} frames, "
-               f"wall {summary.wall_time_s:.2f} s, {summary.tet_steps_per_s / 1e6:.2f} M tet-steps/s")
+               f"wall {summary.wall_time_s:.2f} s, {summary.tet_steps_per_s / 1e6:.3g} M tet-steps/s")

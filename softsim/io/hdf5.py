@@ -45,6 +45,9 @@ def check_writable(path):
         raise SimulationError(f"output.path = '{path}': folder {folder} is not writable")
     if Path(path).is_dir():
         raise SimulationError(f"output.path = '{path}': is a directory, expected a file name like out.h5")
+    if xdmf_path_for(path).resolve() == Path(path).resolve():
+        raise SimulationError(f"output.path = '{path}': is the name of the XDMF file written beside the "
+                              f"HDF5 file; use an HDF5 name like out.h5")
 
 
 class RunWriter:
@@ -98,7 +101,8 @@ class RunWriter:
         """Append one frame and the resume state, then flush.
 
         points, velocities: (n, 3) [m], [m/s] in the user's order; energy: dict of ENERGY_TERMS [J].
-        ``frames/time`` grows last, so its length counts only frames whose data is in place.
+        ``frames/time`` grows last of the frame datasets, so its length counts only frames whose data
+        is in place; ``state/`` is written after it.
         """
         frames = self.file["frames"]
         k = self.frame_count
@@ -108,11 +112,12 @@ class RunWriter:
         if "energy" in self.fields:
             for term in ENERGY_TERMS:
                 _append(frames["energy"][term], k, energy[term])
+        _append(frames["time"], k, time)
+        # The resume state follows only a complete frame (never ahead of frames/time).
         state = self.file["state"]
         state["positions"][...] = points
         state["velocities"][...] = velocities
         state.attrs.update(time=float(time), step=int(step))
-        _append(frames["time"], k, time)
         self.file.attrs["wall_time_s"] = _time.perf_counter() - self._started
         self.file.flush()
         now = _time.perf_counter()
@@ -133,11 +138,22 @@ class RunWriter:
             raise ValueError(f"status must be one of {STATUSES}, got {status!r}")
         if not self.file:
             return
+        self._drop_partial_frame()
         self.file.attrs.update(status=status, status_reason=reason,
                                wall_time_s=_time.perf_counter() - self._started)
         self.file.flush()
         self._write_xdmf()
         self.file.close()
+
+    def _drop_partial_frame(self):
+        """Shrink every per-frame dataset to ``frames/time``'s length (a frame cut off mid-write)."""
+        k = self.frame_count
+        datasets = []
+        self.file["frames"].visititems(lambda name, obj: datasets.append(obj)
+                                       if isinstance(obj, h5py.Dataset) else None)
+        for dataset in datasets:
+            if dataset.shape[0] > k:
+                dataset.resize(k, axis=0)
 
     def __enter__(self):
         return self

@@ -74,7 +74,7 @@ def checked_mesh(points, tets, source):
 
 def build_mesh(spec):
     """The checked ``TetMesh`` of a scene's ``mesh`` section."""
-    source = spec.file if spec.shape == "file" else f"mesh.shape = {spec.shape}"
+    source = f"mesh.file = '{spec.file}'" if spec.shape == "file" else f"mesh.shape = {spec.shape}"
     points, tets = raw_tetrahedra(spec)
     return checked_mesh(points, tets, source)
 

@@ -1,5 +1,8 @@
 """Reading a tetrahedral mesh from any file format meshio understands."""
 
+import contextlib
+import io
+
 import numpy as np
 
 from ..errors import MeshError
@@ -16,10 +19,15 @@ def read_tetrahedra(path):
     """
     import meshio
 
+    said = io.StringIO()
     try:
-        mesh = meshio.read(path)
-    except Exception as exc:  # meshio raises many types for unreadable or foreign files
-        reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        # meshio prints its own complaints, and calls sys.exit(1) when no reader fits the file
+        with contextlib.redirect_stdout(said), contextlib.redirect_stderr(said):
+            mesh = meshio.read(path)
+    except (Exception, SystemExit) as exc:
+        text = "" if isinstance(exc, SystemExit) else str(exc).strip()
+        printed = " ".join(line.strip() for line in said.getvalue().splitlines() if line.strip())
+        reason = text.splitlines()[0] if text else (printed or type(exc).__name__)
         raise MeshError(f"mesh.file = '{path}': cannot be read as a mesh by meshio ({reason})") from None
     points = np.asarray(mesh.points, dtype=np.float64)
     if points.ndim != 2 or points.shape[1] != 3:

@@ -1,0 +1,368 @@
+"""The ``softsim`` command line: options, the summary line, bad input, ``softsim mesh``."""
+
+import io
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import h5py
+import meshio
+import numpy as np
+import pytest
+import yaml
+from click.testing import CliRunner
+
+from softsim.cli import run as run_module
+from softsim.cli.main import cli
+from softsim.config import SceneLoader, load_scene, parse_scene
+
+# A 0.3 x 0.1 x 0.1 m bar of 6 x 2 x 2 hex cells = 120 tets, 63 vertices; 4 frames.
+SCENE = """\
+mesh:
+  shape: box
+  size: [0.3, 0.1, 0.1]
+  origin: [0.0, -0.05, -0.05]
+  element_size: 0.05
+  structured: true
+material:
+  model: stvk
+  youngs_modulus: 1.0e6
+  poissons_ratio: 0.3
+  density: 1000.0
+fixed:
+  - {min: [-1.0e-6, -1, -1], max: [1.0e-6, 1, 1]}
+time:
+  duration: 0.003
+output:
+  path: out.h5
+  frame_interval: 0.001
+"""
+TETS = 120
+BOX_MESH = ("  shape: box\n  size: [0.3, 0.1, 0.1]\n  origin: [0.0, -0.05, -0.05]\n"
+            "  element_size: 0.05\n  structured: true\n")
+
+
+def scene_with(*replacements, text=SCENE):
+    """SCENE with each ``(old, new)`` text replacement applied (each ``old`` must occur)."""
+    for old, new in replacements:
+        assert old in text, old
+        text = text.replace(old, new)
+    return text
+
+
+def invoke(*args):
+    return CliRunner().invoke(cli, [str(a) for a in args])
+
+
+def ok(*args):
+    result = invoke(*args)
+    assert result.exit_code == 0, (result.output, result.exception)
+    return result
+
+
+@pytest.fixture
+def work(tmp_path, monkeypatch):
+    """A scratch working directory (a relative output.path lands here)."""
+    folder = tmp_path / "work"
+    folder.mkdir()
+    monkeypatch.chdir(folder)
+    return folder
+
+
+def write(folder, text, name="scene.yaml"):
+    path = folder / name
+    path.write_text(text)
+    return path
+
+
+def stored_config(path):
+    with h5py.File(path) as f:
+        return parse_scene(yaml.load(f.attrs["config"], Loader=SceneLoader))
+
+
+# ---------------------------------------------------------------------------------------------
+# Options
+
+
+def test_output_path_from_the_scene_is_relative_to_the_working_directory(work, tmp_path):
+    scenes = tmp_path / "scenes"
+    scenes.mkdir()
+    ok("run", write(scenes, SCENE))
+    assert (work / "out.h5").is_file() and (work / "out.xdmf").is_file()
+    assert not (scenes / "out.h5").exists()
+    with h5py.File(work / "out.h5") as f:
+        assert f.attrs["status"] == "complete"
+
+
+def test_dash_o_overrides_output_path(work):
+    ok("run", write(work, SCENE), "-o", "other.h5")
+    assert sorted(p.name for p in work.iterdir()) == ["other.h5", "other.xdmf", "scene.yaml"]
+    assert stored_config(work / "other.h5").output.path == "other.h5"
+
+
+def test_set_changes_the_run_and_the_stored_config(work):
+    scene = write(work, SCENE)
+    ok("run", scene, "-o", "base.h5")
+    ok("run", scene, "-o", "stiff.h5", "--set", "material.youngs_modulus=2e8", "--set", "damping=0.5")
+    base, stiff = stored_config(work / "base.h5"), stored_config(work / "stiff.h5")
+    assert base.material.youngs_modulus == 1.0e6
+    assert stiff.material.youngs_modulus == 2.0e8 and isinstance(stiff.material.youngs_modulus, float)
+    assert stiff.damping == 0.5
+    expected = load_scene(scene, ["material.youngs_modulus=2e8", "damping=0.5", "output.path=stiff.h5"])
+    assert stiff == expected
+    with h5py.File(work / "base.h5") as f, h5py.File(work / "stiff.h5") as g:
+        assert g.attrs["dt"] < f.attrs["dt"]      # stiffer material: smaller stable step
+        assert g.attrs["steps"] > f.attrs["steps"]
+
+
+def test_exponent_numbers_without_a_dot_are_numbers(work):
+    text = scene_with(("youngs_modulus: 1.0e6", "youngs_modulus: 2.0e11"),
+                      ("density: 1000.0", "density: 8e3"),
+                      ("duration: 0.003", "duration: 2e-5"),
+                      ("frame_interval: 0.001", "frame_interval: 1e-5"))
+    text += "ground: {height: -1, stiffness: 1e6}\n"
+    ok("run", write(work, text), "-o", "steel.h5")
+    scene = stored_config(work / "steel.h5")
+    assert scene.material.youngs_modulus == 2.0e11
+    assert scene.material.density == 8000.0
+    assert scene.time.duration == 2e-5 and scene.output.frame_interval == 1e-5
+    assert scene.ground.stiffness == 1e6
+    with h5py.File(work / "steel.h5") as f:
+        np.testing.assert_allclose(f["frames/time"][:], [0.0, 1e-5, 2e-5], rtol=0, atol=1e-15)
+
+
+# ---------------------------------------------------------------------------------------------
+# Summary line and progress bar
+
+
+def test_summary_line(work):
+    result = ok("run", write(work, SCENE), "-o", "run.h5")
+    lines = result.stdout.strip().splitlines()
+    assert len(lines) == 1, result.stdout
+    line = lines[0]
+    with h5py.File(work / "run.h5") as f:
+        steps, dt, wall = int(f.attrs["steps"]), float(f.attrs["dt"]), float(f.attrs["wall_time_s"])
+    assert re.search(rf"\b{steps} steps\b", line), line
+    shown_dt = float(re.search(r"dt ([0-9.eE+-]+) s", line).group(1))
+    assert shown_dt == pytest.approx(dt, rel=1e-3)
+    shown_wall = float(re.search(r"wall ([0-9.]+) s", line).group(1))
+    assert 0 < shown_wall < 60
+    assert shown_wall == pytest.approx(wall, abs=0.5)
+    rate = re.search(r"([0-9.eE+-]+) (M )?tet-steps/s", line)
+    assert rate, line
+    shown_rate = float(rate.group(1)) * (1e6 if rate.group(2) else 1.0)
+    assert shown_rate > 0
+    assert shown_rate == pytest.approx(TETS * steps / shown_wall, rel=0.5)
+
+
+def test_no_progress_bar_when_stderr_is_not_a_terminal(work):
+    result = ok("run", write(work, SCENE), "-o", "run.h5")
+    assert "\r" not in result.stderr and "%|" not in result.stderr and "step/s" not in result.stderr
+    assert "\r" not in result.stdout
+
+
+def test_no_progress_bar_on_a_pipe(monkeypatch):
+    monkeypatch.setattr(run_module.sys, "stderr", io.StringIO())
+    assert run_module._progress_bar(100) is None
+
+
+def test_progress_bar_on_a_terminal(monkeypatch):
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    terminal = Terminal()
+    monkeypatch.setattr(run_module.sys, "stderr", terminal)
+    bar = run_module._progress_bar(40)
+    assert bar is not None
+    bar.update(40)
+    bar.refresh()
+    assert "40/40" in terminal.getvalue() and "step" in terminal.getvalue()
+    bar.close()
+
+
+# ---------------------------------------------------------------------------------------------
+# Bad input: one line on stderr naming key, value and what is allowed; non-zero exit; no file
+
+
+def _mesh_file(folder, name, points, cells):
+    meshio.write(folder / name, meshio.Mesh(np.asarray(points, float), cells))
+
+
+UNIT_TET = [[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]]
+
+
+def _file_scene(name):
+    return scene_with((BOX_MESH, f"  shape: file\n  file: {name}\n"))
+
+
+def _no_tets(folder):
+    _mesh_file(folder, "surface.vtu", UNIT_TET, [("triangle", [[0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3]])])
+    return _file_scene("surface.vtu")
+
+
+def _flat_tet(folder):
+    points = UNIT_TET + [[1, 1, 0]]                 # vertex 4 lies in the plane z = 0 of 0, 1, 2
+    _mesh_file(folder, "flat.vtu", points, [("tetra", [[0, 1, 2, 3], [0, 1, 2, 4]])])
+    return _file_scene("flat.vtu")
+
+
+def _tangled(folder):
+    points = UNIT_TET + [[0.2, 0.2, 0.5]]           # vertex 4 on the same side of face 0-1-2 as 3
+    _mesh_file(folder, "tangled.vtu", points, [("tetra", [[0, 1, 2, 3], [0, 1, 2, 4]])])
+    return _file_scene("tangled.vtu")
+
+
+def _garbage(name, content):
+    def setup(folder):
+        (folder / name).write_text(content)
+        return _file_scene(name)
+    return setup
+
+
+def _hexes(folder):
+    cube = [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]]
+    _mesh_file(folder, "hex.vtu", cube, [("hexahedron", [list(range(8))])])
+    return _file_scene("hex.vtu")
+
+
+BAD_INPUTS = [
+    # id, scene text (or setup(folder) -> text, or None: no scene file), extra args, expected parts
+    ("unknown-key", scene_with(("density: 1000.0", "densty: 1000.0")), [],
+     ["material.densty", "unknown key", "density"]),
+    ("unknown-section", SCENE + "gravty: [0, 0, -9.81]\n", [], ["gravty", "unknown", "'gravity'"]),
+    ("unknown-key-by-set", SCENE, ["--set", "material.poisson=0.3"],
+     ["material.poisson", "unknown key", "poissons_ratio"]),
+    ("string-for-number", scene_with(("density: 1000.0", "density: heavy")), [],
+     ["material.density", "heavy", "must be a number"]),
+    ("yes-for-number", scene_with(("youngs_modulus: 1.0e6", "youngs_modulus: yes")), [],
+     ["material.youngs_modulus", "true", "must be a number"]),
+    ("quoted-number", scene_with(("density: 1000.0", "density: '1000'")), [],
+     ["material.density", "'1000'", "must be a number"]),
+    ("unknown-model", scene_with(("model: stvk", "model: rubber")), [],
+     ["material.model", "rubber", "neohookean"]),
+    ("poisson-0.5", scene_with(("poissons_ratio: 0.3", "poissons_ratio: 0.5")), [],
+     ["material.poissons_ratio", "0.5", "greater than -1 and less than 0.5"]),
+    ("poisson--1.2", scene_with(("poissons_ratio: 0.3", "poissons_ratio: -1.2")), [],
+     ["material.poissons_ratio", "-1.2", "greater than -1 and less than 0.5"]),
+    ("youngs-zero", scene_with(("youngs_modulus: 1.0e6", "youngs_modulus: 0")), [],
+     ["material.youngs_modulus", "0", "greater than 0"]),
+    ("youngs-negative", SCENE, ["--set", "material.youngs_modulus=-2e8"],
+     ["material.youngs_modulus", "-200000000.0", "greater than 0"]),
+    ("density-zero", scene_with(("density: 1000.0", "density: 0.0")), [],
+     ["material.density", "0.0", "greater than 0"]),
+    ("density-negative", scene_with(("density: 1000.0", "density: -1000")), [],
+     ["material.density", "-1000", "greater than 0"]),
+    ("duration-zero", scene_with(("duration: 0.003", "duration: 0")), [],
+     ["time.duration", "0", "greater than 0"]),
+    ("duration-negative", SCENE, ["--set", "time.duration=-1"], ["time.duration", "-1", "greater than 0"]),
+    ("element-size-zero", scene_with(("element_size: 0.05", "element_size: 0")), [],
+     ["mesh.element_size", "0", "greater than 0"]),
+    ("element-size-negative", scene_with(("element_size: 0.05", "element_size: -0.05")), [],
+     ["mesh.element_size", "-0.05", "greater than 0"]),
+    ("nan", scene_with(("youngs_modulus: 1.0e6", "youngs_modulus: .nan")), [],
+     ["material.youngs_modulus", "nan", "finite"]),
+    ("inf", scene_with(("density: 1000.0", "density: .inf")), [], ["material.density", "inf", "finite"]),
+    ("inf-by-set", SCENE, ["--set", "time.duration=.inf"], ["time.duration", "inf", "finite"]),
+    ("overflow-to-inf", scene_with(("density: 1000.0", "density: 1e999")), [],
+     ["material.density", "finite"]),
+    ("nan-in-vector", SCENE + "gravity: [0, 0, .nan]\n", [], ["gravity", "finite"]),
+    ("missing-mesh-file", _file_scene("nowhere.msh"), [], ["mesh.file", "nowhere.msh", "not found"]),
+    ("mesh-file-is-text", _garbage("notes.vtu", "this is not a mesh\n"), [],
+     ["mesh.file", "notes.vtu", "cannot be read as a mesh"]),
+    ("mesh-file-unknown-format", _garbage("beam.txt", "1 2 3\n"), [],
+     ["mesh.file", "beam.txt", "cannot be read as a mesh"]),
+    ("mesh-file-empty", _garbage("empty.msh", ""), [], ["mesh.file", "empty.msh", "cannot be read"]),
+    ("mesh-without-tets", _no_tets, [], ["mesh.file", "surface.vtu", "no tetrahedra", "triangle"]),
+    ("mesh-with-hexes", _hexes, [], ["mesh.file", "hex.vtu", "hexahedron", "tetrahedra only"]),
+    ("zero-volume-tet", _flat_tet, [], ["flat.vtu", "degenerate", "volume", "allowed"]),
+    ("tangled-mesh", _tangled, [], ["tangled.vtu", "tangled", "same side"]),
+    ("list-not-mapping", "- mesh\n- material\n", [], ["must be a mapping", "mesh", "material"]),
+    ("scalar-not-mapping", "42\n", [], ["must be a mapping", "42"]),
+    ("empty-scene", "", [], ["must be a mapping", "empty"]),
+    ("yaml-syntax-error", "mesh: {shape: box, size: [1, 2\nmaterial: {}\n", [],
+     ["scene.yaml", "invalid YAML", "line"]),
+    ("duplicate-key", SCENE + "damping: 1\ndamping: 2\n", [], ["scene.yaml", "duplicate key", "damping"]),
+    ("missing-section", scene_with(("material:\n", "materials:\n")), [], ["material", "materials"]),
+    ("missing-scene-file", None, [], ["scene file not found", "scene.yaml"]),
+    ("output-folder-missing", SCENE, ["-o", "no/such/folder/out.h5"], ["no/such/folder/out.h5", "does not exist"]),
+    ("output-folder-missing-in-scene", scene_with(("path: out.h5", "path: nowhere/out.h5")), [],
+     ["output.path", "nowhere/out.h5", "does not exist"]),
+    ("output-is-a-folder", SCENE, ["-o", "."], ["'.'", "directory"]),
+    ("output-named-like-the-xdmf", SCENE, ["-o", "run.xdmf"], ["run.xdmf", "XDMF", "out.h5"]),
+    ("bad-set-syntax", SCENE, ["--set", "material.youngs_modulus"], ["material.youngs_modulus", "key.path=value"]),
+    ("bad-dt", scene_with(("duration: 0.003", "duration: 0.003\n  dt: fast")), [],
+     ["time.dt", "fast", "'auto' or a positive number"]),
+]
+
+
+@pytest.mark.parametrize("case", BAD_INPUTS, ids=[case[0] for case in BAD_INPUTS])
+def test_bad_input_gets_one_line_and_no_output(case, work, tmp_path):
+    _, text, args, expected = case
+    if callable(text):
+        text = text(work)
+    if text is not None:
+        write(work, text)
+    result = invoke("run", work / "scene.yaml", *args)
+    assert result.exit_code != 0
+    assert result.exit_code != 130
+    # a handled error, not an exception escaping click (which a terminal shows as a traceback)
+    assert result.exception is None or isinstance(result.exception, SystemExit), repr(result.exception)
+    lines = result.stderr.splitlines()
+    assert len(lines) == 1, result.stderr
+    assert "Traceback" not in result.output
+    for part in expected:
+        assert part in lines[0], (part, lines[0])
+    assert result.stdout == ""
+    left = sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*") if p.suffix in (".h5", ".xdmf"))
+    assert left == []
+
+
+def test_bad_mesh_output_folder_is_one_line(work):
+    result = invoke("mesh", write(work, SCENE), "-o", "no/such/folder/mesh.vtu")
+    assert result.exit_code != 0
+    assert len(result.stderr.splitlines()) == 1, result.stderr
+    assert "no/such/folder/mesh.vtu" in result.stderr
+
+
+def test_console_script_bad_input_is_one_line_without_traceback(tmp_path):
+    """The installed ``softsim`` script, in a real process: the user's view of a bad scene."""
+    script = Path(sys.executable).with_name("softsim")
+    assert script.is_file(), script
+    scene = write(tmp_path, scene_with(("density: 1000.0", "density: heavy")))
+    done = subprocess.run([str(script), "run", str(scene)], cwd=tmp_path, capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode != 0
+    assert "Traceback" not in done.stderr + done.stdout
+    lines = done.stderr.splitlines()
+    assert len(lines) == 1, done.stderr
+    assert "material.density" in lines[0] and "heavy" in lines[0] and "number" in lines[0]
+    assert done.stdout == ""
+    assert not list(tmp_path.glob("*.h5")) and not list(tmp_path.glob("*.xdmf"))
+
+
+# ---------------------------------------------------------------------------------------------
+# softsim mesh
+
+
+def test_mesh_command_writes_a_readable_mesh(work):
+    result = ok("mesh", write(work, SCENE), "-o", "bar.vtu")
+    mesh = meshio.read(work / "bar.vtu")
+    assert len(mesh.get_cells_type("tetra")) == TETS
+    assert len(mesh.points) == 63
+    tets = mesh.get_cells_type("tetra")
+    X = mesh.points[tets]
+    assert (np.linalg.det(X[:, 1:] - X[:, :1]) > 0).all()
+    assert "bar.vtu" in result.stdout and str(TETS) in result.stdout
+    assert not list(work.glob("*.h5"))
+
+
+def test_mesh_command_honours_set(work):
+    ok("mesh", write(work, SCENE), "-o", "fine.vtu", "--set", "mesh.element_size=0.025")
+    assert len(meshio.read(work / "fine.vtu").get_cells_type("tetra")) == 12 * 4 * 4 * 5
+
+
+def test_mesh_command_reports_quality(work):
+    result = ok("mesh", write(work, SCENE), "-o", "bar.vtu")
+    assert "dihedral" in result.stderr and f"{TETS} tets" in result.stderr
