@@ -32,13 +32,22 @@ class SoftsimGroup(click.Group):
         except KeyboardInterrupt:
             click.echo("softsim: interrupted", err=True)
             sys.exit(EXIT_INTERRUPTED)
+        except (click.exceptions.Exit, click.ClickException):
+            raise
+        except Exception as exc:   # a bug: one line by default, the traceback with -vv
+            if (ctx.meta.get("softsim.verbosity") or 0) > 1:
+                raise
+            first_line = (str(exc).strip().splitlines() or [""])[0]
+            raise click.ClickException(
+                f"unexpected {type(exc).__name__}: {first_line} (run with -vv for the traceback)") from None
 
 
 @click.group(cls=SoftsimGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.option("-v", "--verbose", count=True, help="More messages (repeatable).")
 @click.option("-q", "--quiet", is_flag=True, help="Only errors.")
 @click.version_option(__version__, prog_name="softsim")
-def cli(verbose, quiet):
+@click.pass_context
+def cli(ctx, verbose, quiet):
     """softsim: explicit FEM simulation of elastic solids from YAML scene files.
 
     \b
@@ -47,6 +56,7 @@ def cli(verbose, quiet):
       softsim run configs/bouncing_cube.yaml --set material.youngs_modulus=5e5
       softsim mesh configs/cantilever.yaml -o beam.vtu
     """
+    ctx.meta["softsim.verbosity"] = verbose
     logger = logging.getLogger("softsim")
     logger.handlers[:] = [_EchoHandler()]
     logger.propagate = False

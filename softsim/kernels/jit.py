@@ -4,18 +4,52 @@
 ``njit_parallel`` a driver whose ``prange`` loops run on Numba's thread pool.  Both cache the
 machine code on disk (``cache=True``), so a second run does not recompile.  Every jitted function
 is a module-level function: Numba cannot cache closures.
+
+Numba checks a cached function only against its *own* source file, yet the machine code also
+contains every jitted function it calls from other files (a driver in ``forces.py`` inlines the
+material law of ``materials/models.py``).  Each cache entry is therefore also stamped with a hash
+of all of softsim's sources: editing any of them recompiles instead of running stale code.
 """
+
+import hashlib
+import os
 
 import numba
 
 JIT_OPTIONS = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
 
+_PACKAGE_DIR = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def _package_source_hash():
+    """SHA-256 over the relative paths and contents of every ``.py`` file of the softsim package."""
+    digest = hashlib.sha256()
+    for root, dirs, files in os.walk(_PACKAGE_DIR):
+        dirs[:] = sorted(d for d in dirs if d != "__pycache__")
+        for name in sorted(f for f in files if f.endswith(".py")):
+            path = os.path.join(root, name)
+            digest.update(os.path.relpath(path, _PACKAGE_DIR).encode())
+            with open(path, "rb") as f:
+                digest.update(f.read())
+    return digest.hexdigest()
+
+
+_SOURCE_HASH = _package_source_hash()
+
+
+def _stamp_with_package_hash(dispatcher):
+    """Make ``dispatcher``'s on-disk cache stale whenever any softsim source file changes."""
+    cache_file = getattr(getattr(dispatcher, "_cache", None), "_cache_file", None)
+    if cache_file is not None and hasattr(cache_file, "_source_stamp"):
+        cache_file._source_stamp = (cache_file._source_stamp, _SOURCE_HASH)
+    return dispatcher
+
 
 def njit(func):
     """Compile ``func`` as a serial, cached Numba function."""
-    return numba.njit(**JIT_OPTIONS)(func)
+    return _stamp_with_package_hash(numba.njit(**JIT_OPTIONS)(func))
 
 
 def njit_parallel(func):
     """Compile ``func`` as a cached Numba function whose ``prange`` loops run in parallel."""
-    return numba.njit(parallel=True, **JIT_OPTIONS)(func)
+    return _stamp_with_package_hash(numba.njit(parallel=True, **JIT_OPTIONS)(func))
