@@ -1,0 +1,52 @@
+"""Shared fixtures: a factory for small, valid scenes built through the real schema.
+
+``scene(**overrides)`` returns a validated ``softsim.config.Scene`` for a tiny structured cube
+(0.2 m, 2 x 2 x 2 hex cells = 40 tets, soft rubber-like stvk) with every other key at the schema's
+default.  Keyword arguments are section names; a mapping is merged into that section (nested
+mappings recursively), anything else replaces it, and ``None`` removes the key so the schema's
+default applies again::
+
+    scene(material={"model": "linear"}, gravity=[0, 0, 0], ground={"height": 0.0})
+    scene(mesh={"size": [1.0, 0.2, 0.2]}, time={"dt": 1e-4})
+
+Relative ``mesh.file`` paths are resolved against the test's ``tmp_path``.
+"""
+
+import copy
+
+import pytest
+
+from softsim.config import parse_scene
+
+BASE_SCENE = {
+    "mesh": {"shape": "box", "size": [0.2, 0.2, 0.2], "element_size": 0.1, "structured": True},
+    "material": {"model": "stvk", "youngs_modulus": 1.0e5, "poissons_ratio": 0.3, "density": 1000.0},
+}
+
+
+def merge(base, overrides):
+    """``base`` (a dict) with ``overrides`` merged in: mappings recursively, ``None`` deletes."""
+    result = copy.deepcopy(base)
+    for key, value in overrides.items():
+        if value is None:
+            result.pop(key, None)
+        elif isinstance(value, dict) and isinstance(result.get(key), dict):
+            result[key] = merge(result[key], value)
+        else:
+            result[key] = copy.deepcopy(value)
+    return result
+
+
+def scene_dict(**overrides):
+    """The raw scene mapping of ``BASE_SCENE`` with ``overrides`` merged in (see module doc)."""
+    return merge(BASE_SCENE, overrides)
+
+
+@pytest.fixture
+def scene(tmp_path):
+    """Factory ``scene(**overrides) -> Scene`` (validated by ``parse_scene``, base dir ``tmp_path``)."""
+
+    def make(**overrides):
+        return parse_scene(scene_dict(**overrides), base_dir=tmp_path)
+
+    return make
