@@ -33,7 +33,8 @@ class Model:
     boundary_faces: (b, 3) outward-wound faces; boundary_area: (n,) [m^2] a third of each adjacent face.
     gravity: (3,) [m/s^2]; traction_force: (n, 3) [N] constant; external_accel: (n, 3) = gravity + traction / m.
     held: (n, 3) bool; held_velocity: (n, 3) [m/s].
-    has_ground, ground_height [m], ground_friction, contact_stiffness (n,) [N/m] = stiffness [Pa/m] x boundary area.
+    face_offsets (n+1,), face_slots (3b,): vertex -> (boundary face, corner) map.
+    ground_stiffness [Pa/m] (None without a ground), ground_height [m], ground_friction.
     """
 
     mesh: TetMesh
@@ -56,10 +57,27 @@ class Model:
     external_accel: np.ndarray
     held: np.ndarray
     held_velocity: np.ndarray
-    has_ground: bool
+    face_offsets: np.ndarray
+    face_slots: np.ndarray
+    ground_stiffness: float | None
     ground_height: float
     ground_friction: float
-    contact_stiffness: np.ndarray
+
+    @property
+    def has_ground(self):
+        return self.ground_stiffness is not None
+
+    @property
+    def contact_stiffness_bound(self):
+        """Upper bound of each vertex's contact spring [N/m], (n,): stiffness x whole boundary area."""
+        return (self.ground_stiffness or 0.0) * self.boundary_area
+
+    def ground_arguments(self):
+        """``None`` without a ground, else the tuple ``integrators.symplectic_euler.ground_contact`` takes."""
+        if not self.has_ground:
+            return None
+        return (self.ground_height, self.ground_stiffness, self.ground_friction,
+                self.boundary_faces, self.face_offsets, self.face_slots)
 
     @property
     def node_count(self):
@@ -117,6 +135,7 @@ def build_model(scene, mesh):
     areas = face_areas(points, faces)
     boundary_area = np.zeros(n)
     np.add.at(boundary_area, faces.ravel(), np.repeat(areas / 3.0, 3))
+    face_offsets, face_slots = vertex_tet_csr(faces, n)
 
     traction_force = np.zeros((n, 3))
     for load in scene.tractions:
@@ -142,10 +161,10 @@ def build_model(scene, mesh):
         lam=float(lam), mu=float(mu), csr_offsets=offsets, csr_slots=slots, boundary_faces=faces,
         boundary_area=boundary_area, gravity=gravity, traction_force=traction_force,
         external_accel=np.ascontiguousarray(external_accel), held=held, held_velocity=held_velocity,
-        has_ground=ground is not None,
+        face_offsets=face_offsets, face_slots=face_slots,
+        ground_stiffness=float(ground.stiffness) if ground is not None else None,
         ground_height=float(ground.height) if ground is not None else 0.0,
         ground_friction=float(ground.friction) if ground is not None else 0.0,
-        contact_stiffness=(ground.stiffness * boundary_area) if ground is not None else np.zeros(n),
     )
 
 

@@ -53,7 +53,7 @@ def stable_dt_estimate(scene, model):
     c_p = dilatational_wave_speed(material.youngs_modulus, material.poissons_ratio, material.density)
     h_min = float(altitudes(model.rest_points, model.tets).min())
     if model.has_ground:
-        return stable_step_estimate(h_min, c_p, model.contact_stiffness, model.mass)
+        return stable_step_estimate(h_min, c_p, model.contact_stiffness_bound, model.mass)
     return stable_step_estimate(h_min, c_p)
 
 
@@ -84,8 +84,7 @@ def step(model, state, dt, step_count, damping, corner_forces):
             model.csr_offsets, model.csr_slots, corner_forces,
             model.inv_mass, model.external_accel,
             model.held, state.held_start, model.held_velocity,
-            model.has_ground, model.ground_height, model.ground_friction, model.contact_stiffness,
-            damping > 0.0, math.exp(-damping * dt))
+            model.ground_arguments(), math.exp(-damping * dt) if damping > 0.0 else None)
     state.step += step_count
 
 

