@@ -27,12 +27,12 @@ class Model:
     mesh: the checked mesh in the user's order (written to the output).
     vertex_order: (n,) int64, internal vertex i is the user's vertex ``vertex_order[i]``.
     rest_points: (n, 3) [m]; tets: (m, 4) int64; Dm_inv: (m, 3, 3) [1/m]; rest_volume: (m,) [m^3].
-    mass, inv_mass: (n,) [kg], [1/kg] lumped.
+    mass, inv_mass: (n,) [kg], [1/kg] lumped; a vertex no tet uses has mass 0, inv_mass 0 and is held.
     material_id: model id; lam, mu: the model's Lame parameters [Pa]; lame_hooke: (lambda, mu) of Hooke's law [Pa].
     csr_offsets (n+1,), csr_slots (4m,): vertex -> (tet, corner) map.
     boundary_faces: (b, 3) outward-wound faces; boundary_area: (n,) [m^2] a third of each adjacent face.
     gravity: (3,) [m/s^2]; traction_force: (n, 3) [N] constant; external_accel: (n, 3) = gravity + traction / m.
-    held: (n, 3) bool; held_velocity: (n, 3) [m/s].
+    held: (n, 3) bool; held_velocity: (n, 3) [m/s]; fixed: (n,) bool, held by the scene's ``fixed`` boxes.
     face_offsets (n+1,), face_slots (3b,): vertex -> (boundary face, corner) map.
     ground_stiffness [Pa/m] (None without a ground), ground_height [m], ground_friction.
     """
@@ -57,6 +57,7 @@ class Model:
     external_accel: np.ndarray
     held: np.ndarray
     held_velocity: np.ndarray
+    fixed: np.ndarray
     face_offsets: np.ndarray
     face_slots: np.ndarray
     ground_stiffness: float | None
@@ -143,7 +144,6 @@ def build_model(scene, mesh):
         np.add.at(traction_force, faces[on_face].ravel(),
                   np.repeat(areas[on_face] / 3.0, 3)[:, None] * np.asarray(load.traction))
     gravity = np.asarray(scene.gravity, dtype=np.float64)
-    external_accel = gravity[None, :] + traction_force / mass[:, None]
 
     held = np.zeros((n, 3), dtype=np.bool_)
     held_velocity = np.zeros((n, 3))
@@ -154,13 +154,20 @@ def build_model(scene, mesh):
             held[inside, k] = True
             held_velocity[inside, k] = box.velocity[k]
 
+    fixed = held.any(axis=1)
+    unreferenced = mass == 0.0
+    held[unreferenced] = True          # massless: no force acts on them, they stay where they start
+    held_velocity[unreferenced] = 0.0
+    inv_mass = np.where(unreferenced, 0.0, 1.0 / np.where(unreferenced, 1.0, mass))
+    external_accel = gravity[None, :] + traction_force * inv_mass[:, None]
+
     ground = scene.ground
     return Model(
         mesh=mesh, vertex_order=vertex_order, rest_points=points, tets=tets, Dm_inv=Dm_inv,
-        rest_volume=rest_volume, mass=mass, inv_mass=1.0 / mass, material_id=MODEL_IDS[material.model],
+        rest_volume=rest_volume, mass=mass, inv_mass=inv_mass, material_id=MODEL_IDS[material.model],
         lam=float(lam), mu=float(mu), csr_offsets=offsets, csr_slots=slots, boundary_faces=faces,
         boundary_area=boundary_area, gravity=gravity, traction_force=traction_force,
-        external_accel=np.ascontiguousarray(external_accel), held=held, held_velocity=held_velocity,
+        external_accel=np.ascontiguousarray(external_accel), held=held, held_velocity=held_velocity, fixed=fixed,
         face_offsets=face_offsets, face_slots=face_slots,
         ground_stiffness=float(ground.stiffness) if ground is not None else None,
         ground_height=float(ground.height) if ground is not None else 0.0,

@@ -105,7 +105,7 @@ def simulate(prepared, output_path, progress=None):
         writer.append_frame(state.step * plan.dt, state.step, model.to_user_order(state.x),
                             model.to_user_order(state.v), energy)
 
-    fixed = model.to_user_order(model.held.any(axis=1))
+    fixed = model.to_user_order(model.fixed)
     started = _time.perf_counter()
     with RunWriter(output_path, model.mesh.points, model.mesh.tets, fixed, scene_to_yaml(scene),
                    plan.dt, plan.total_steps, fields) as writer:

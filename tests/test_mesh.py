@@ -16,8 +16,8 @@ from softsim.errors import MeshError
 from softsim.mesh import build_mesh, checked_mesh
 from softsim.mesh.checks import boundary_faces
 from softsim.mesh.generate import structured_box
-from softsim.model import build_model
-from softsim.simulation import prepare, simulate
+from softsim.model import build_model, initial_state
+from softsim.simulation import prepare, simulate, step
 
 EDGES = [(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)]
 FACES = [(1, 2, 3), (0, 2, 3), (0, 1, 3), (0, 1, 2)]   # face k is opposite corner k
@@ -225,7 +225,9 @@ def test_reversed_tets_are_reoriented_and_counted(scene, tmp_path, caplog):
     assert any("orient" in w and re.search(r"\b3\b", w) for w in warnings), warnings
 
 
-def test_unreferenced_vertices_are_dropped(scene, tmp_path, caplog):
+def test_unreferenced_vertices_are_kept_massless_and_held(scene, tmp_path, caplog):
+    """A user's vertex numbers stay valid: stray vertices stay in the mesh, get no mass, and are
+    held where they start, while the rest of the body moves."""
     points, tets = small_mesh()
     # Two stray vertices: one before all the others, one in the middle.
     stray = np.array([[5.0, 5.0, 5.0], [-3.0, 0.0, 0.0]])
@@ -233,11 +235,25 @@ def test_unreferenced_vertices_are_dropped(scene, tmp_path, caplog):
     index = np.concatenate([np.arange(1, 7), np.arange(8, 14)])      # old vertex -> new position
     meshio.write(tmp_path / "stray.vtu", meshio.Mesh(with_stray, [("tetra", index[tets])]))
     with caplog.at_level(logging.WARNING, logger="softsim"):
-        mesh = build_mesh(file_scene(scene, "stray.vtu").mesh)
-    np.testing.assert_array_equal(mesh.points, points)
-    np.testing.assert_array_equal(mesh.tets, tets)
+        s = file_scene(scene, "stray.vtu")
+        mesh = build_mesh(s.mesh)
+    np.testing.assert_array_equal(mesh.points, with_stray)
+    np.testing.assert_array_equal(mesh.tets, index[tets])
     warnings = warning_texts(caplog, tmp_path)
-    assert any("drop" in w and re.search(r"\b2\b", w) for w in warnings), warnings
+    assert any("no tetrahedron" in w and re.search(r"\b2\b", w) for w in warnings), warnings
+
+    model = build_model(s, mesh)
+    mass = model.to_user_order(model.mass)
+    assert (mass[[0, 7]] == 0.0).all() and (np.delete(mass, [0, 7]) > 0.0).all()
+    assert model.mass.sum() == pytest.approx(s.material.density * volumes(points, tets).sum())
+    assert not model.to_user_order(model.fixed)[[0, 7]].any()     # not reported as user-fixed
+    state = initial_state(s, model)
+    corner = np.empty((model.tet_count, 4, 3))
+    step(model, state, 1e-5, 10, 0.0, corner)            # falls under gravity
+    x = model.to_user_order(state.x)
+    np.testing.assert_array_equal(x[[0, 7]], with_stray[[0, 7]])
+    body = np.delete(np.arange(14), [0, 7])
+    assert np.isfinite(x).all() and (x[body, 2] < with_stray[body, 2]).all()
 
 
 def _mesh_error(scene, tmp_path, name, mesh=None, text=None):

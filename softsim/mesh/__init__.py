@@ -5,7 +5,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .checks import boundary_faces, check_not_degenerate, drop_unreferenced_vertices, orient_positively
+from .checks import boundary_faces, check_not_degenerate, orient_positively
 from .quality import format_quality, quality_summary
 
 log = logging.getLogger("softsim")
@@ -55,15 +55,17 @@ def raw_tetrahedra(spec):
 
 
 def checked_mesh(points, tets, source):
-    """A ``TetMesh`` from raw arrays: unreferenced vertices dropped, tets oriented, checked.
+    """A ``TetMesh`` from raw arrays: tets oriented and checked, vertex numbering kept.
 
-    Raises ``MeshError`` for degenerate or tangled tets; logs a warning for what it repaired.
+    Raises ``MeshError`` for degenerate or tangled tets; logs a warning for re-oriented tets and
+    for vertices no tet uses (they stay in the output, massless and held at their initial place).
     """
-    input_count = len(points)
-    points, tets, kept = drop_unreferenced_vertices(np.asarray(points, np.float64), np.asarray(tets, np.int64))
-    dropped = input_count - kept.size
-    if dropped:
-        log.warning("%s: dropped %d vertices that no tetrahedron uses", source, dropped)
+    points = np.asarray(points, np.float64)
+    tets = np.asarray(tets, np.int64)
+    unreferenced = len(points) - len(np.unique(tets))
+    if unreferenced:
+        log.warning("%s: %d vertices are used by no tetrahedron; they are kept in the output but not "
+                    "simulated (they stay at their initial position)", source, unreferenced)
     check_not_degenerate(points, tets, source)
     tets, reversed_count = orient_positively(points, tets)
     if reversed_count:

@@ -5,7 +5,7 @@
   is refused (a regular tet has ``V = l^3 / (6 sqrt 2) ~ 0.118 l^3``).
 - Tangling: every face is shared by at most two tets, and two tets sharing a face lie on opposite
   sides of it (the face appears once with each orientation).  Otherwise the mesh is refused.
-- Unreferenced vertices carry no mass and are dropped (their count is reported).
+- Vertices no tet uses are kept (a user's vertex numbers stay valid); the model holds them.
 """
 
 import numpy as np
@@ -80,13 +80,3 @@ def boundary_faces(tets, source="mesh"):
             f"{source}: tangled mesh: tetrahedra {tets_of_face} share face {keys[f].tolist()} on the same side of it"
         )
     return faces[counts[inverse] == 1]
-
-
-def drop_unreferenced_vertices(points, tets):
-    """``(points, tets, kept)``: only vertices some tet uses; ``kept`` are their input indices."""
-    kept = np.unique(tets)
-    if kept.size == points.shape[0]:
-        return points, tets, kept
-    new_index = np.full(points.shape[0], -1, dtype=np.int64)
-    new_index[kept] = np.arange(kept.size)
-    return points[kept], new_index[tets], kept
