@@ -5,6 +5,7 @@ file is written; ``simulate`` runs the prepared scene frame by frame.  Kernels d
 this module only decides what to call and in which order.
 """
 
+import logging
 import math
 import time as _time
 from dataclasses import dataclass
@@ -19,6 +20,8 @@ from .kernels.energy import elastic_energy, gravity_energy, kinetic_energy
 from .mesh import build_mesh
 from .mesh.quality import altitudes
 from .model import build_model, initial_state
+
+log = logging.getLogger("softsim")
 
 
 @dataclass(frozen=True)
@@ -63,6 +66,9 @@ def prepare(scene):
     model = build_model(scene, mesh)
     dt_estimate = stable_dt_estimate(scene, model)
     dt = None if scene.time.dt == "auto" else float(scene.time.dt)
+    if dt is not None and dt > dt_estimate:
+        log.warning("time.dt = %.4g s is above the stable-step estimate %.4g s: the run may blow up "
+                    "(dt: auto picks a stable step)", dt, dt_estimate)
     plan = plan_time(scene.time.duration, scene.output.frame_interval, dt=dt, dt_estimate=dt_estimate)
     return Prepared(scene=scene, model=model, plan=plan, dt_estimate=dt_estimate)
 

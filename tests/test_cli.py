@@ -366,3 +366,13 @@ def test_mesh_command_honours_set(work):
 def test_mesh_command_reports_quality(work):
     result = ok("mesh", write(work, SCENE), "-o", "bar.vtu")
     assert "dihedral" in result.stderr and f"{TETS} tets" in result.stderr
+
+
+def test_a_given_dt_above_the_stable_step_is_warned_about(work):
+    """The run goes on as asked (the stability issue adds policies), but says so first."""
+    result = invoke("run", write(work, SCENE), "-o", "run.h5", "--set", "time.dt=0.01",
+                    "--set", "time.duration=0.02", "--set", "output.frame_interval=0.01")
+    warning = [line for line in result.stderr.splitlines() if line.startswith("warning:")]
+    assert len(warning) == 1 and "time.dt = 0.01" in warning[0], result.stderr
+    auto = ok("run", write(work, SCENE), "-o", "auto.h5")
+    assert "warning" not in auto.stderr
