@@ -10,7 +10,7 @@ gradient is constant inside the element::
 """
 
 from .jit import njit
-from .mat3 import mat3_add_scaled, mat3_identity, mat3_mul, mat3_transpose, mat3_transpose_mul
+from .mat3 import mat3_add_scaled, mat3_identity, mat3_mul, mat3_scale, mat3_transpose, mat3_transpose_mul
 
 
 @njit
@@ -38,7 +38,7 @@ def deformation_gradient(Ds, Dm_inv):
 def green_strain(F):
     """Green-Lagrange strain ``E = 1/2 (F^T F - I)``; zero under any rigid motion."""
     C = mat3_transpose_mul(F, F)
-    return mat3_add_scaled(mat3_scale_half(C), mat3_identity(), -0.5)
+    return mat3_add_scaled(mat3_scale(C, 0.5), mat3_identity(), -0.5)
 
 
 @njit
@@ -46,10 +46,5 @@ def small_strain(F):
     """Infinitesimal strain ``eps = 1/2 (F + F^T) - I``; not zero under rotation."""
     Ft = mat3_transpose(F)
     S = mat3_add_scaled(F, Ft, 1.0)
-    return mat3_add_scaled(mat3_scale_half(S), mat3_identity(), -1.0)
+    return mat3_add_scaled(mat3_scale(S, 0.5), mat3_identity(), -1.0)
 
-
-@njit
-def mat3_scale_half(a):
-    return (0.5 * a[0], 0.5 * a[1], 0.5 * a[2], 0.5 * a[3], 0.5 * a[4], 0.5 * a[5],
-            0.5 * a[6], 0.5 * a[7], 0.5 * a[8])
