@@ -45,8 +45,9 @@ def run(scene, output, overrides):
     prepared = prepare(scene_config)
     log.info("mesh: %s", format_quality(prepared.mesh.quality()))
     plan = prepared.plan
-    log.info("dt = %.4g s (stable-step estimate %.4g s), %d steps, %d frames",
-             plan.dt, prepared.dt_estimate, plan.total_steps, len(plan.frame_steps))
+    given = "" if prepared.substeps == 1 else f" (time.dt split into {prepared.substeps} sub-steps, dt_policy: substep)"
+    log.info("dt = %.4g s%s, stable step %.4g s, %d steps, %d frames",
+             plan.dt, given, prepared.safe_dt, plan.total_steps, len(plan.frame_steps))
     bar = _progress_bar(plan.total_steps)
     update = None if bar is None else (lambda done, total: bar.update(done - bar.n))
     try:

@@ -26,6 +26,7 @@ class Model:
 
     mesh: the checked mesh in the user's order (written to the output).
     vertex_order: (n,) int64, internal vertex i is the user's vertex ``vertex_order[i]``.
+    tet_order: (m,) int64, internal tet e is the user's tet ``tet_order[e]``.
     rest_points: (n, 3) [m]; tets: (m, 4) int64; Dm_inv: (m, 3, 3) [1/m]; rest_volume: (m,) [m^3].
     mass, inv_mass: (n,) [kg], [1/kg] lumped; a vertex no tet uses has mass 0, inv_mass 0 and is held.
     material_id: model id; lam, mu: the model's Lame parameters [Pa]; lame_hooke: (lambda, mu) of Hooke's law [Pa].
@@ -39,6 +40,7 @@ class Model:
 
     mesh: TetMesh
     vertex_order: np.ndarray
+    tet_order: np.ndarray
     rest_points: np.ndarray
     tets: np.ndarray
     Dm_inv: np.ndarray
@@ -124,7 +126,7 @@ def face_areas(points, faces):
 
 def build_model(scene, mesh):
     """The ``Model`` of a validated scene (``softsim.config.Scene``) on its checked ``mesh``."""
-    points, tets, vertex_order, _ = renumber_for_locality(mesh.points, mesh.tets)
+    points, tets, vertex_order, tet_order = renumber_for_locality(mesh.points, mesh.tets)
     n = points.shape[0]
     material = scene.material
     Dm_inv, rest_volume = rest_state(points, tets)
@@ -163,7 +165,7 @@ def build_model(scene, mesh):
 
     ground = scene.ground
     return Model(
-        mesh=mesh, vertex_order=vertex_order, rest_points=points, tets=tets, Dm_inv=Dm_inv,
+        mesh=mesh, vertex_order=vertex_order, tet_order=tet_order, rest_points=points, tets=tets, Dm_inv=Dm_inv,
         rest_volume=rest_volume, mass=mass, inv_mass=inv_mass, material_id=MODEL_IDS[material.model],
         lam=float(lam), mu=float(mu), csr_offsets=offsets, csr_slots=slots, boundary_faces=faces,
         boundary_area=boundary_area, gravity=gravity, traction_force=traction_force,

@@ -14,24 +14,37 @@ import numpy as np
 
 from .config import scene_to_yaml
 from .integrators.symplectic_euler import advance
-from .integrators.timestep import dilatational_wave_speed, plan_time, stable_step_estimate
+from .errors import ConfigError
+from .integrators.guard import RECHECK_STEPS, FrameGuard
+from .integrators.timestep import AUTO_SAFETY, dilatational_wave_speed, plan_time, stable_step_estimate
 from .io.hdf5 import RunWriter, check_writable
 from .kernels.energy import elastic_energy, gravity_energy, kinetic_energy
 from .mesh import build_mesh
 from .mesh.quality import altitudes
-from .model import build_model, initial_state
+from .model import State, build_model, initial_state
 
 log = logging.getLogger("softsim")
+
+# dt: exact uses this fraction of the eigenvalue limit 2 / sqrt(lambda_max(M^-1 K)) at rest.
+EXACT_SAFETY = 0.9
 
 
 @dataclass(frozen=True)
 class Prepared:
-    """A scene ready to run: its mesh, model, time plan and stable-step estimate [s]."""
+    """A scene ready to run: its model, time plan, and stable steps.
+
+    dt_estimate: the altitude / wave-speed estimate of the stable step [s]; safe_dt: the step
+    ``dt: auto`` would use before fitting it to the frames [s]; substeps: how many sub-steps the
+    policy split a given dt into; wave_speed: dilatational wave speed [m/s].
+    """
 
     scene: object
     model: object
     plan: object
     dt_estimate: float
+    safe_dt: float
+    substeps: int
+    wave_speed: float
 
     @property
     def mesh(self):
@@ -50,27 +63,56 @@ class RunSummary:
     path: str
 
 
-def stable_dt_estimate(scene, model):
+def stable_dt_estimate(model, wave_speed):
     """Estimated largest stable symplectic-Euler step [s] of this mesh, material and contact."""
-    material = scene.material
-    c_p = dilatational_wave_speed(material.youngs_modulus, material.poissons_ratio, material.density)
     h_min = float(altitudes(model.rest_points, model.tets).min())
     if model.has_ground:
-        return stable_step_estimate(h_min, c_p, model.contact_stiffness_bound, model.mass)
-    return stable_step_estimate(h_min, c_p)
+        return stable_step_estimate(h_min, wave_speed, model.contact_stiffness_bound, model.mass)
+    return stable_step_estimate(h_min, wave_speed)
+
+
+def choose_dt(scene, model, dt_estimate):
+    """``(dt_target, safe_dt, substeps)`` [s, s, count] from ``time.dt`` and ``time.dt_policy``.
+
+    ``auto``: ``AUTO_SAFETY x`` the altitude estimate; ``exact``: ``EXACT_SAFETY x`` the limit from
+    the largest eigenvalue of M^-1 K.  A given dt above the safe step is split into the fewest
+    equal sub-steps below it (``substep``), refused (``refuse``), or used as given (``allow``).
+    """
+    safe = AUTO_SAFETY * dt_estimate
+    if scene.time.dt == "auto":
+        return safe, safe, 1
+    if scene.time.dt == "exact":
+        from .integrators.stability import exact_stable_step
+
+        exact = EXACT_SAFETY * exact_stable_step(model)
+        return exact, exact, 1
+    dt = float(scene.time.dt)
+    if dt <= safe * (1.0 + 1e-9) or scene.time.dt_policy == "allow":
+        if dt > safe:
+            log.warning("time.dt = %.4g s is above the stable step %.4g s; dt_policy: allow uses it as given",
+                        dt, safe)
+        return dt, safe, 1
+    if scene.time.dt_policy == "refuse":
+        raise ConfigError(f"time.dt = {dt:g}: above the stable step {safe:.4g} s of this mesh and material "
+                          f"(dt_policy: refuse); use a dt <= {safe:.4g}, dt: auto, or dt_policy: substep")
+    substeps = math.ceil(dt / safe - 1e-9)
+    return dt / substeps, safe, substeps
 
 
 def prepare(scene):
     """Mesh the scene, build its model and time plan; raises ``SoftsimError`` on bad input."""
     mesh = build_mesh(scene.mesh)
     model = build_model(scene, mesh)
-    dt_estimate = stable_dt_estimate(scene, model)
-    dt = None if scene.time.dt == "auto" else float(scene.time.dt)
-    if dt is not None and dt > dt_estimate:
-        log.warning("time.dt = %.4g s is above the stable-step estimate %.4g s: the run may blow up "
-                    "(dt: auto picks a stable step)", dt, dt_estimate)
-    plan = plan_time(scene.time.duration, scene.output.frame_interval, dt=dt, dt_estimate=dt_estimate)
-    return Prepared(scene=scene, model=model, plan=plan, dt_estimate=dt_estimate)
+    material = scene.material
+    wave_speed = dilatational_wave_speed(material.youngs_modulus, material.poissons_ratio, material.density)
+    dt_estimate = stable_dt_estimate(model, wave_speed)
+    dt, safe_dt, substeps = choose_dt(scene, model, dt_estimate)
+    if scene.time.dt in ("auto", "exact"):
+        plan = plan_time(scene.time.duration, scene.output.frame_interval, max_dt=dt)
+    else:
+        plan = plan_time(scene.time.duration, scene.output.frame_interval, dt=dt)
+    return Prepared(scene=scene, model=model, plan=plan, dt_estimate=dt_estimate, safe_dt=safe_dt,
+                    substeps=substeps, wave_speed=wave_speed)
 
 
 def frame_energy(model, state):
@@ -94,6 +136,16 @@ def step(model, state, dt, step_count, damping, corner_forces):
     state.step += step_count
 
 
+def advance_substeps(model, state, dt, step_count, substeps, damping, corner_forces):
+    """Advance ``state`` by ``step_count`` steps of ``dt`` [s], each split into ``substeps`` equal ones."""
+    if substeps == 1:
+        step(model, state, dt, step_count, damping, corner_forces)
+        return
+    fine = State(x=state.x, v=state.v, step=state.step * substeps, held_start=state.held_start)
+    step(model, fine, dt / substeps, step_count * substeps, damping, corner_forces)
+    state.step += step_count
+
+
 def simulate(prepared, output_path, progress=None):
     """Run a prepared scene, writing frames to ``output_path``; returns a ``RunSummary``.
 
@@ -112,12 +164,20 @@ def simulate(prepared, output_path, progress=None):
                             model.to_user_order(state.v), energy)
 
     fixed = model.to_user_order(model.fixed)
+    guard = FrameGuard(model, prepared.wave_speed, plan.dt, scene.time.dt_policy, state)
     started = _time.perf_counter()
     with RunWriter(output_path, model.mesh.points, model.mesh.tets, fixed, scene_to_yaml(scene),
                    plan.dt, plan.total_steps, fields) as writer:
+        substeps = guard.check(state, 0.0)
         write_frame(writer)
         for target in plan.frame_steps[1:]:
-            step(model, state, plan.dt, target - state.step, scene.damping, corner_forces)
+            steps = target - state.step
+            while target - state.step > RECHECK_STEPS:
+                advance_substeps(model, state, plan.dt, RECHECK_STEPS, substeps, scene.damping, corner_forces)
+                substeps = guard.recheck_step(state, state.step * plan.dt)
+            advance_substeps(model, state, plan.dt, target - state.step, substeps, scene.damping, corner_forces)
+            guard.record_held_work(state, steps * plan.dt)
+            substeps = guard.check(state, state.step * plan.dt)
             write_frame(writer)
             if progress is not None:
                 progress(state.step, plan.total_steps)

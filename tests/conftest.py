@@ -50,3 +50,26 @@ def scene(tmp_path):
         return parse_scene(scene_dict(**overrides), base_dir=tmp_path)
 
     return make
+
+
+@pytest.fixture(autouse=True)
+def no_written_file_holds_non_finite_values(request):
+    """After every test that used ``tmp_path``: every HDF5 file under it holds only finite numbers."""
+    yield
+    tmp = request.node.funcargs.get("tmp_path")
+    if tmp is None:
+        return
+    import h5py
+    import numpy as np
+
+    def check(name, obj):
+        if isinstance(obj, h5py.Dataset) and obj.dtype.kind == "f" and obj.size:
+            assert np.isfinite(obj[...]).all(), f"{path}:{name} holds non-finite values"
+
+    for path in tmp.rglob("*.h5"):
+        try:
+            f = h5py.File(path, "r")
+        except OSError:
+            continue   # a test's deliberately broken or foreign file
+        with f:
+            f.visititems(check)

@@ -293,7 +293,7 @@ BAD_INPUTS = [
     ("output-named-like-the-xdmf", SCENE, ["-o", "run.xdmf"], ["run.xdmf", "XDMF", "out.h5"]),
     ("bad-set-syntax", SCENE, ["--set", "material.youngs_modulus"], ["material.youngs_modulus", "key.path=value"]),
     ("bad-dt", scene_with(("duration: 0.003", "duration: 0.003\n  dt: fast")), [],
-     ["time.dt", "fast", "'auto' or a positive number"]),
+     ["time.dt", "fast", "'auto', 'exact' or a positive number"]),
 ]
 
 
@@ -368,11 +368,22 @@ def test_mesh_command_reports_quality(work):
     assert "dihedral" in result.stderr and f"{TETS} tets" in result.stderr
 
 
-def test_a_given_dt_above_the_stable_step_is_warned_about(work):
-    """The run goes on as asked (the stability issue adds policies), but says so first."""
-    result = invoke("run", write(work, SCENE), "-o", "run.h5", "--set", "time.dt=0.01",
-                    "--set", "time.duration=0.02", "--set", "output.frame_interval=0.01")
-    warning = [line for line in result.stderr.splitlines() if line.startswith("warning:")]
-    assert len(warning) == 1 and "time.dt = 0.01" in warning[0], result.stderr
+def test_a_given_dt_above_the_stable_step_is_substepped_refused_or_allowed(work):
+    """dt_policy: substep (default) splits the step and says so; refuse gives one line and no
+    file; allow uses it with a warning (the guard is then the safety net)."""
+    args = ("--set", "time.dt=0.01", "--set", "time.duration=0.02", "--set", "output.frame_interval=0.01")
+    substep = ok("run", write(work, SCENE), "-o", "sub.h5", *args)
+    assert "sub-steps" in substep.stderr and "warning" not in substep.stderr
+    with h5py.File(work / "sub.h5") as f:
+        assert f.attrs["dt"] < 0.01 and 0.01 / f.attrs["dt"] == pytest.approx(round(0.01 / f.attrs["dt"]))
+
+    refused = invoke("run", write(work, SCENE), "-o", "refused.h5", *args, "--set", "time.dt_policy=refuse")
+    assert refused.exit_code != 0
+    assert len(refused.stderr.splitlines()) == 1 and "time.dt = 0.01" in refused.stderr
+    assert "stable step" in refused.stderr and not (work / "refused.h5").exists()
+
+    allowed = invoke("run", write(work, SCENE), "-o", "allowed.h5", *args, "--set", "time.dt_policy=allow")
+    warning = [line for line in allowed.stderr.splitlines() if line.startswith("warning:")]
+    assert len(warning) == 1 and "time.dt = 0.01" in warning[0], allowed.stderr
     auto = ok("run", write(work, SCENE), "-o", "auto.h5")
     assert "warning" not in auto.stderr

@@ -30,6 +30,8 @@ NO_VALUE = object()
 SHAPES = ("box", "cylinder", "sphere", "file")
 MODELS = ("linear", "stvk", "corotated", "neohookean")
 AXES = ("x", "y", "z")
+DT_CHOICES = ("auto", "exact")
+DT_POLICIES = ("substep", "refuse", "allow")
 PRECISIONS = ("float64",)
 OUTPUT_FIELDS = ("velocities", "energy")
 
@@ -186,10 +188,10 @@ def _check_list(value: Any) -> Any:
 
 
 def _check_dt(value: Any) -> Union[str, float]:
-    """``"auto"`` or a positive finite number of seconds."""
-    if value == "auto" and isinstance(value, str):
+    """``"auto"``, ``"exact"`` or a positive finite number of seconds."""
+    if isinstance(value, str) and value in DT_CHOICES:
         return value
-    message = "must be 'auto' or a positive number of seconds"
+    message = "must be 'auto', 'exact' or a positive number of seconds"
     if not _is_number(value):
         fail(message)
     try:
@@ -210,7 +212,8 @@ PositiveVector = Annotated[Vec3, BeforeValidator(_check_positive_vec3)]
 Matrix = Annotated[Mat3, BeforeValidator(_check_mat3)]
 Flag = Annotated[bool, BeforeValidator(_check_bool)]
 FilePath = Annotated[str, BeforeValidator(_check_path_string)]
-TimeStep = Annotated[Union[Literal["auto"], float], BeforeValidator(_check_dt)]
+TimeStep = Annotated[Union[Literal["auto", "exact"], float], BeforeValidator(_check_dt)]
+DtPolicy = Annotated[Literal["substep", "refuse", "allow"], BeforeValidator(_choice_checker(DT_POLICIES))]
 Shape = Annotated[
     Literal["box", "cylinder", "sphere", "file"], BeforeValidator(_choice_checker(SHAPES))
 ]
@@ -388,7 +391,13 @@ class Time(Section):
 
     duration: Positive = Field(1.0, description="simulated time [s] > 0")
     dt: TimeStep = Field(
-        "auto", description="time step [s] > 0, or 'auto' (from the CFL limit); float or str"
+        "auto",
+        description="time step [s] > 0; 'auto': a safety factor x the altitude / wave-speed estimate; "
+        "'exact': from the largest eigenvalue of M^-1 K",
+    )
+    dt_policy: DtPolicy = Field(
+        "substep",
+        description="for a step above the stable one: substep (split it), refuse (error), allow (use it)",
     )
 
 

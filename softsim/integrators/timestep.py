@@ -46,16 +46,16 @@ class TimePlan:
         return tuple(s * self.dt for s in self.frame_steps)
 
 
-def plan_time(duration, frame_interval, dt=None, dt_estimate=None):
+def plan_time(duration, frame_interval, dt=None, max_dt=None):
     """A ``TimePlan`` for ``duration`` [s] with a frame every ``frame_interval`` [s].
 
-    With ``dt`` None (``auto``), dt is the largest step not above ``AUTO_SAFETY * dt_estimate``
-    that fits a whole number of times into ``frame_interval``.  With a given ``dt``, frames fall
-    on the nearest whole number of steps to ``frame_interval``.  The last frame is at the end of
-    the run, ``total_steps * dt >= duration``.
+    With ``max_dt`` (``auto``, ``exact``), dt is the largest step not above ``max_dt`` that fits a
+    whole number of times into ``frame_interval``.  With a given ``dt``, frames fall on the
+    nearest whole number of steps to ``frame_interval``.  The last frame is at the end of the run,
+    ``total_steps * dt >= duration``.
     """
     if dt is None:
-        steps_per_frame = max(1, math.ceil(frame_interval / (AUTO_SAFETY * dt_estimate) - 1e-9))
+        steps_per_frame = max(1, math.ceil(frame_interval / max_dt - 1e-9))
         dt = frame_interval / steps_per_frame
     else:
         steps_per_frame = max(1, round(frame_interval / dt))

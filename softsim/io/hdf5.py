@@ -22,7 +22,7 @@ import h5py
 import numpy as np
 
 from .. import __version__
-from ..errors import SimulationError
+from ..errors import SimulationError, SoftsimError
 from .xdmf import write_xdmf
 
 ENERGY_TERMS = ("kinetic", "elastic", "gravity")
@@ -164,6 +164,8 @@ class RunWriter:
                 self.finish("complete")
             elif issubclass(exc_type, KeyboardInterrupt):
                 self.finish("interrupted", "interrupted by the user")
+            elif issubclass(exc_type, SoftsimError):
+                self.finish("failed", str(exc).splitlines()[0])
             else:
                 self.finish("failed", f"{exc_type.__name__}: {exc}".splitlines()[0])
         return False

@@ -1,0 +1,173 @@
+"""Once-per-frame checks of a running simulation: the stable step on the deformed mesh, and a
+blow-up guard that stops a run before anything non-finite or meaningless is written.
+
+Explicit time stepping is only conditionally stable.  Every frame:
+
+1. the stable step of the *deformed* state: softsim's kernels are total-Lagrangian (rest-state
+   gradients, rest masses), so deformation changes the stable step only through the material's
+   tangent stiffness (neohookean and stvk stiffen where they stretch; a squashed corotated element
+   does not need a smaller step).  Whenever any element's J or stretch has moved by more than
+   ``RECHECK_CHANGE`` since the last look, the largest eigenvalue of ``M^-1 K`` is recomputed at
+   the current state (``stability.exact_stable_step``); the run sub-steps, or stops under
+   ``dt_policy: refuse``;
+2. positions and velocities must be finite;
+3. the mechanical energy (kinetic + elastic) must stay below ``ENERGY_GUARD_FACTOR`` times what
+   could have been put in: its initial value, the work of gravity, of the tractions and of the
+   prescribed motion of held vertices;
+4. models that cannot handle inversion (``linear``, ``stvk``) must see no element with J <= 0.
+
+A failed check raises ``SimulationError`` naming the simulated time, the step and the element or
+vertex (in the user's numbering) where the trouble is.
+"""
+
+import math
+
+import numpy as np
+
+from ..errors import SimulationError
+from ..kernels.element_checks import element_volume_ratios_and_stretches
+from ..kernels.energy import elastic_energy, gravity_energy, kinetic_energy
+from ..kernels.forces import elastic_forces
+from ..materials.models import INVERSION_SAFE, MODEL_IDS
+from .stability import exact_stable_step
+
+ENERGY_GUARD_FACTOR = 10.0
+# Within a frame, the stable step is re-checked at least every this many planned steps (one pass
+# over the tets, a few percent of the stepping work), so a fast collapse inside a long frame is seen.
+RECHECK_STEPS = 32
+# Relative change of any element's J or stretch that triggers a new eigenvalue estimate.
+RECHECK_CHANGE = 0.05
+# Sub-steps are sized to this fraction of the eigenvalue limit 2 / omega_max.
+EIGEN_SAFETY = 0.8
+# A frame may be split into at most this many sub-steps per step before the run is stopped.
+MAX_SUBSTEPS = 1000
+_INVERSION_SAFE_IDS = tuple(MODEL_IDS[name] for name in INVERSION_SAFE)
+_MODEL_NAMES = {v: k for k, v in MODEL_IDS.items()}
+
+
+class FrameGuard:
+    """Checks a model's state once per frame (``check``) and tracks the energy put in.
+
+    model: ``softsim.model.Model``; wave_speed: dilatational wave speed [m/s]; dt: the planned step [s];
+    policy: ``substep`` | ``refuse`` | ``allow``; state0: the initial ``State``.
+    """
+
+    def __init__(self, model, wave_speed, dt, policy, state0):
+        self.model = model
+        self.wave_speed = wave_speed
+        self.dt = dt
+        self.policy = policy
+        self.J = np.empty(model.tet_count)
+        self.stretch = np.empty(model.tet_count)
+        self.J_seen = np.ones(model.tet_count)          # J and stretch at the last eigenvalue look
+        self.stretch_seen = np.ones(model.tet_count)
+        self.substeps = 1
+        self.x0 = state0.x.copy()
+        self.gravity0 = gravity_energy(state0.x, model.mass, model.gravity)
+        self.mechanical0 = kinetic_energy(state0.v, model.mass) + self._elastic(state0.x)
+        self.moving_held = np.flatnonzero((model.held & (model.held_velocity != 0.0)).any(axis=1))
+        self.held_work = 0.0
+        self.held_power = self._held_power(state0) if self.moving_held.size else 0.0
+        # the energy scale of the material: below it, "growth" is round-off
+        self.energy_floor = 1e-9 * model.mass.sum() * wave_speed ** 2
+
+    def _elastic(self, x):
+        m = self.model
+        return elastic_energy(x, m.tets, m.Dm_inv, m.rest_volume, m.material_id, m.lam, m.mu)
+
+    def _where(self, time, step):
+        return f"at t = {time:.6g} s (step {step})"
+
+    def _user_tet(self, e):
+        return int(self.model.tet_order[e])
+
+    def _user_vertex(self, i):
+        return int(self.model.vertex_order[i])
+
+    def _held_power(self, state):
+        """Power [W] the prescribed motion of held vertices puts into the body: -sum f_i . v_i."""
+        m = self.model
+        f = elastic_forces(state.x, m.tets, m.Dm_inv, m.rest_volume, m.material_id, m.lam, m.mu,
+                           m.csr_offsets, m.csr_slots)[self.moving_held]
+        return -float((f * m.held_velocity[self.moving_held]).sum())
+
+    def record_held_work(self, state, frame_time):
+        """Add the work [J] of the moving held vertices over the last ``frame_time`` [s] (trapezoid rule).
+
+        Signed, so that the wildly alternating forces of a blow-up do not inflate the budget.
+        """
+        if self.moving_held.size == 0:
+            return
+        power = self._held_power(state)
+        self.held_work += 0.5 * (self.held_power + power) * frame_time
+        self.held_power = power
+
+    def check(self, state, time):
+        """Check a frame's ``state`` at ``time`` [s]; return the sub-steps per step for the next frame.
+
+        Raises ``SimulationError`` if the state is non-finite, blown up, inverted where the model
+        cannot handle it, or (under ``refuse``) needs a smaller step than the one in use.
+        """
+        m = self.model
+        where = self._where(time, state.step)
+        self._check_finite(state, where)
+        element_volume_ratios_and_stretches(state.x, m.tets, m.Dm_inv, self.J, self.stretch)
+        if m.material_id not in _INVERSION_SAFE_IDS:
+            e = int(np.argmin(self.J))
+            if self.J[e] <= 0.0:
+                raise SimulationError(
+                    f"element {self._user_tet(e)} inverted (J = {self.J[e]:.3g}) {where}; the "
+                    f"{_MODEL_NAMES[m.material_id]} model cannot recover from inversion: use neohookean or corotated")
+        mechanical = kinetic_energy(state.v, m.mass) + self._elastic(state.x)
+        gravity_in = self.gravity0 - gravity_energy(state.x, m.mass, m.gravity)
+        traction_in = float((m.traction_force * (state.x - self.x0)).sum())
+        budget = self.mechanical0 + max(gravity_in, 0.0) + max(traction_in, 0.0) + max(self.held_work, 0.0)
+        if mechanical > ENERGY_GUARD_FACTOR * budget + self.energy_floor:
+            speed = np.linalg.norm(state.v, axis=1)
+            i = int(np.argmax(speed))
+            raise SimulationError(
+                f"the simulation blew up {where}: energy {mechanical:.3g} J is over {ENERGY_GUARD_FACTOR:g}x the "
+                f"{budget:.3g} J put in (fastest vertex {self._user_vertex(i)}); use a smaller dt or dt: auto")
+        return self._substeps(state, time)
+
+    def _check_finite(self, state, where):
+        bad = ~(np.isfinite(state.x).all(axis=1) & np.isfinite(state.v).all(axis=1))
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise SimulationError(f"the simulation blew up {where}: vertex {self._user_vertex(i)} is not finite; "
+                                  f"use a smaller dt or dt: auto")
+
+    def recheck_step(self, state, time):
+        """Sub-steps per planned step, looking only at the deformation (between frames)."""
+        if self.policy == "allow":
+            return 1
+        self._check_finite(state, self._where(time, state.step))
+        m = self.model
+        element_volume_ratios_and_stretches(state.x, m.tets, m.Dm_inv, self.J, self.stretch)
+        return self._substeps(state, time)
+
+    def _substeps(self, state, time):
+        """Sub-steps per planned step at the state whose J and stretch ``self`` holds."""
+        if self.policy == "allow":
+            return 1
+        change = max(np.abs(self.J - self.J_seen).max(initial=0.0),
+                     np.abs(self.stretch / self.stretch_seen - 1.0).max(initial=0.0))
+        if change <= RECHECK_CHANGE:
+            return self.substeps
+        self.J_seen[:] = self.J
+        self.stretch_seen[:] = self.stretch
+        safe = EIGEN_SAFETY * exact_stable_step(self.model, state.x, iterations=80, tol=1e-2)
+        where = self._where(time, state.step)
+        if self.dt <= safe * (1.0 + 1e-9):
+            self.substeps = 1
+        elif self.policy == "refuse":
+            raise SimulationError(f"the stable step fell to {safe:.3g} s, below dt = {self.dt:.3g} s, {where} "
+                                  f"(dt_policy: refuse)")
+        else:
+            self.substeps = math.ceil(self.dt / safe - 1e-9)
+            if self.substeps > MAX_SUBSTEPS:
+                e = int(np.argmax(self.stretch))
+                raise SimulationError(
+                    f"the stable step fell to {safe:.3g} s {where} (most stretched element {self._user_tet(e)}, "
+                    f"J = {self.J[e]:.3g}): more than {MAX_SUBSTEPS} sub-steps per step")
+        return self.substeps

@@ -1,0 +1,300 @@
+"""Symplectic Euler's exact stability limit from the largest eigenvalue of ``M^-1 K``.
+
+Undamped symplectic Euler on ``M a = -K u`` is stable iff ``dt < 2 / omega_max`` with
+``omega_max^2 = lambda_max(M^-1 K)``.  ``largest_frequency_squared`` finds ``lambda_max`` without
+assembling anything:
+
+- ``K`` is the tangent stiffness at positions ``x``, applied matrix-free as a central directional
+  derivative of the elastic forces, ``K u = -(f(x + eps u) - f(x - eps u)) / (2 eps)``, with the
+  same Numba force kernels as the time loop (``kernels.forces``), so it is the tangent of
+  whichever material model the scene uses, at rest or at a deformed state.  ``eps`` moves the
+  fastest vertex by ``1e-6`` of the smallest element altitude at ``x`` (strains of about 1e-6:
+  truncation error ~1e-12 relative, round-off ~1e-10 relative for metre-sized coordinates).
+- Held components (``model.held``, which includes every massless vertex) do not move: they are
+  projected out, so the operator acts on the free components only.
+- Eigenvalues are those of the symmetric form ``A = M^-1/2 K M^-1/2`` (same spectrum as
+  ``M^-1 K``), found by Lanczos with full reorthogonalisation and explicit restarts from the best
+  Ritz vector (at most ``cycle`` stored vectors, so memory stays ``cycle x 3n`` floats).  The
+  start vector comes from a fixed-seed RNG: the same model gives the same bits.  Ritz values lie
+  below ``lambda_max`` and converge to it from below; Lanczos targets the algebraically largest
+  eigenvalue, so a deformed state whose tangent has negative eigenvalues (buckling) is handled.
+- Ground: a vertex pressed into the ground feels a penalty spring of at most
+  ``model.contact_stiffness_bound[i]`` [N/m] along z.  The worst case, every boundary vertex in
+  contact at once, is added to ``A`` as the diagonal term ``contact_stiffness_bound[i] / mass[i]``
+  on the z component of each free vertex.  Any real contact set has a subset of those springs, so
+  its ``lambda_max`` is at most the one returned (and at most the elastic one plus
+  ``max(contact_stiffness_bound / mass)``, the bound ``timestep.stable_step_estimate`` uses).
+
+``element_frequency_bound`` is a cheap, rigorous alternative at rest: ``lambda_max(M^-1 K)`` is at
+most the largest eigenvalue of any single element's ``M_e^-1 K_e`` (Irons & Treharne 1971; each
+element's lumped mass ``rho V / 4`` per corner is part of its vertices' masses), computed per tet
+from its corner gradients and Hooke's law.
+
+Cost: each operator application is two force evaluations; tens to a few hundred of them are
+needed (see ``benchmarks/stable_step_factor.py`` for timings).
+"""
+
+import logging
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..kernels.forces import compute_tet_corner_forces, gather_vertex_forces
+from ..materials.models import NEOHOOKEAN
+
+log = logging.getLogger("softsim")
+
+# Displacement of the fastest vertex in the finite difference, as a fraction of the smallest
+# element altitude at x, and at least this fraction of the largest coordinate (round-off).
+FD_RELATIVE_STEP = 1e-6
+FD_COORDINATE_FLOOR = 1e-9
+SEED = 20240607
+
+
+@dataclass(frozen=True)
+class FrequencyEstimate:
+    """Result of ``frequency_analysis``.
+
+    lambda_max: largest eigenvalue of ``M^-1 K`` [1/s^2] (the Ritz value; see ``converged``).
+    residual: ``|A y - lambda_max y|`` of the unit Ritz vector y [1/s^2]; an eigenvalue of A lies
+    within it of ``lambda_max``.
+    matvecs: operator applications (each is two force evaluations).
+    converged: residual <= tol * lambda_max.
+    mode: (n, 3) unit eigenvector of the symmetric form (zero on held components).
+    """
+
+    lambda_max: float
+    residual: float
+    matvecs: int
+    converged: bool
+    mode: np.ndarray
+
+
+def _min_altitude(x, tets):
+    """Smallest altitude [m] (3 V / largest face area) over the tets at positions ``x``."""
+    X = x[tets]
+    e1 = X[:, 1] - X[:, 0]
+    e2 = X[:, 2] - X[:, 0]
+    e3 = X[:, 3] - X[:, 0]
+    six_volume = np.abs(np.einsum("ij,ij->i", e1, np.cross(e2, e3)))
+    faces = (np.cross(e1, e2), np.cross(e2, e3), np.cross(e3, e1), np.cross(X[:, 2] - X[:, 1], X[:, 3] - X[:, 1]))
+    twice_area = np.max(np.stack([np.linalg.norm(f, axis=1) for f in faces]), axis=0)
+    h = six_volume / np.maximum(twice_area, 1e-300)
+    return float(h.min()) if h.size else 0.0
+
+
+class _SymmetricOperator:
+    """``y -> (M^-1/2 K M^-1/2 + D) y`` on the free components, K by central differences of the forces."""
+
+    def __init__(self, model, x):
+        self.model = model
+        self.x = np.ascontiguousarray(x, dtype=np.float64)
+        free = ~np.asarray(model.held, dtype=np.bool_) & (model.inv_mass > 0.0)[:, None]
+        self.free = free
+        self.scale = np.where(free, np.sqrt(model.inv_mass)[:, None], 0.0)       # M^-1/2 P
+        diagonal = np.zeros_like(self.x)
+        if model.has_ground:
+            diagonal[:, 2] = model.contact_stiffness_bound * model.inv_mass
+        self.diagonal = np.where(free, diagonal, 0.0)
+        h = _min_altitude(self.x, model.tets)
+        self.step = max(FD_RELATIVE_STEP * h, FD_COORDINATE_FLOOR * float(np.abs(self.x).max(initial=0.0)))
+        self.corner = np.empty((model.tet_count, 4, 3))
+        self.f_plus = np.empty_like(self.x)
+        self.f_minus = np.empty_like(self.x)
+
+    def _forces(self, x, out):
+        m = self.model
+        compute_tet_corner_forces(x, m.tets, m.Dm_inv, m.rest_volume, m.material_id, m.lam, m.mu, self.corner)
+        gather_vertex_forces(self.corner, m.csr_offsets, m.csr_slots, out)
+        return out
+
+    def apply(self, y):
+        """``A y`` for ``y`` (n, 3), zero on held components; returns a new (n, 3) array."""
+        u = self.scale * y
+        largest = float(np.abs(u).max(initial=0.0))
+        if largest == 0.0:
+            return self.diagonal * y
+        eps = self.step / largest
+        self._forces(self.x + eps * u, self.f_plus)
+        self._forces(self.x - eps * u, self.f_minus)
+        Ku = (self.f_minus - self.f_plus) / (2.0 * eps)
+        return self.scale * Ku + self.diagonal * y
+
+
+def _largest_ritz(alpha, beta):
+    """Largest eigenvalue and its eigenvector of the symmetric tridiagonal (alpha, beta[:-1])."""
+    k = len(alpha)
+    T = np.diag(alpha)
+    if k > 1:
+        off = beta[: k - 1]
+        T += np.diag(off, 1) + np.diag(off, -1)
+    w, S = np.linalg.eigh(T)
+    return float(w[-1]), S[:, -1]
+
+
+def _lanczos_largest(apply, v0, dimension, iterations, tol, cycle):
+    """Largest eigenpair of the symmetric operator ``apply`` on flat vectors, from ``v0``.
+
+    Restarted Lanczos: cycles of at most ``cycle`` steps with full (twice repeated) Gram-Schmidt,
+    each restarted from the best Ritz vector.  Stops when the Ritz residual is below
+    ``tol * |theta|``, when the Krylov space is invariant, or after ``iterations`` applications.
+    """
+    v = v0 / np.linalg.norm(v0)
+    theta, residual, matvecs = 0.0, math.inf, 0
+    ritz_vector = v
+    while True:
+        m = max(1, min(cycle, dimension, iterations - matvecs))
+        V = np.empty((m + 1, v.size))
+        alpha = np.zeros(m)
+        beta = np.zeros(m)
+        V[0] = v
+        steps = 0
+        invariant = False
+        for j in range(m):
+            w = apply(V[j])
+            matvecs += 1
+            alpha[j] = V[j] @ w
+            w -= alpha[j] * V[j]
+            if j > 0:
+                w -= beta[j - 1] * V[j - 1]
+            for _ in range(2):                       # full reorthogonalisation, twice is enough
+                w -= V[: j + 1].T @ (V[: j + 1] @ w)
+            beta[j] = np.linalg.norm(w)
+            steps = j + 1
+            theta, s = _largest_ritz(alpha[:steps], beta[:steps])
+            residual = abs(beta[j] * s[-1])
+            scale = max(abs(theta), abs(alpha[: steps]).max(), 1e-300)
+            if beta[j] <= 1e-13 * scale:
+                invariant = True
+                break
+            if residual <= tol * abs(theta):
+                break
+            V[j + 1] = w / beta[j]
+        ritz_vector = V[:steps].T @ s
+        ritz_vector /= np.linalg.norm(ritz_vector)
+        if invariant:
+            residual = abs(beta[steps - 1] * s[-1])
+            return theta, residual, matvecs, True, ritz_vector
+        if residual <= tol * abs(theta):
+            return theta, residual, matvecs, True, ritz_vector
+        if matvecs >= iterations:
+            return theta, residual, matvecs, False, ritz_vector
+        v = ritz_vector
+
+
+def frequency_analysis(model, x=None, iterations=400, tol=1e-4, cycle=60):
+    """``FrequencyEstimate`` of the largest eigenvalue of ``M^-1 K`` at positions ``x`` (default: rest).
+
+    iterations: most operator applications; tol: relative Ritz residual to stop at;
+    cycle: Lanczos vectors kept before a restart (memory ``cycle x 3 node_count`` floats).
+    """
+    x = model.rest_points if x is None else np.asarray(x, dtype=np.float64)
+    op = _SymmetricOperator(model, x)
+    n = x.shape[0]
+    free = op.free.ravel()
+    dimension = int(free.sum())
+    if dimension == 0:
+        return FrequencyEstimate(0.0, 0.0, 0, True, np.zeros((n, 3)))
+    rng = np.random.default_rng(SEED)
+    v0 = np.where(free, rng.standard_normal(3 * n), 0.0)
+
+    def apply(flat):
+        return op.apply(flat.reshape(n, 3)).ravel()
+
+    theta, residual, matvecs, converged, vector = _lanczos_largest(apply, v0, dimension, iterations, tol, cycle)
+    return FrequencyEstimate(lambda_max=float(theta), residual=float(residual), matvecs=matvecs,
+                             converged=bool(converged), mode=vector.reshape(n, 3))
+
+
+def largest_frequency_squared(model, x=None, iterations=400, tol=1e-4):
+    """Largest eigenvalue [1/s^2] of ``M^-1 K`` (plus the ground's worst-case penalty springs) at ``x``.
+
+    model: a ``softsim.model.Model``; x: (n, 3) positions [m] in internal order, default the rest
+    positions.  Held components are fixed.  If Lanczos does not reach ``tol`` within
+    ``iterations`` operator applications, the Ritz value plus its residual is returned (an upper
+    estimate) and a warning is logged.
+    """
+    result = frequency_analysis(model, x, iterations=iterations, tol=tol)
+    if result.converged:
+        return max(result.lambda_max, 0.0)
+    log.warning("largest eigenvalue of M^-1 K not converged after %d iterations (relative residual %.2g); "
+                "using the Ritz value plus its residual", result.matvecs,
+                result.residual / max(abs(result.lambda_max), 1e-300))
+    return max(result.lambda_max + result.residual, 0.0)
+
+
+def exact_stable_step(model, x=None, **kwargs):
+    """Symplectic Euler's stability limit ``2 / sqrt(lambda_max(M^-1 K))`` [s] at positions ``x``.
+
+    ``math.inf`` when nothing can oscillate (every component held).  Keyword arguments go to
+    ``largest_frequency_squared``.
+    """
+    lam = largest_frequency_squared(model, x, **kwargs)
+    return 2.0 / math.sqrt(lam) if lam > 0.0 else math.inf
+
+
+def hooke_lame_parameters(model):
+    """``(lambda, mu)`` [Pa] of the Hooke's law every model linearises to at rest (undoing the
+    stable Neo-Hookean remapping ``mu' = 4/3 mu``, ``lambda' = lambda + 5/6 mu``)."""
+    if model.material_id == NEOHOOKEAN:
+        mu = 0.75 * model.mu
+        return model.lam - 5.0 * mu / 6.0, mu
+    return model.lam, model.mu
+
+
+def element_stiffness_maxima(model, x=None, chunk=65536):
+    """Largest eigenvalue [N/m] of each tet's 12 x 12 stiffness ``K_e``, shape (tet_count,).
+
+    ``K_e`` is linear elasticity (Hooke's law with the model's small-strain constants) on the tet's
+    geometry at ``x`` (default rest): with corner gradients ``b_a`` and volume ``V``,
+    ``K_ab = V (lambda b_a b_b^T + mu (b_a . b_b) I + mu b_b b_a^T)``.
+    """
+    x = model.rest_points if x is None else np.asarray(x, dtype=np.float64)
+    lam, mu = hooke_lame_parameters(model)
+    eye = np.eye(3)
+    out = np.empty(model.tet_count)
+    for start in range(0, model.tet_count, chunk):
+        X = x[model.tets[start:start + chunk]]
+        Ds = np.transpose(X[:, 1:] - X[:, :1], (0, 2, 1))
+        volume = np.abs(np.linalg.det(Ds)) / 6.0
+        G = np.linalg.inv(Ds)                                   # rows: gradients of corners 1..3
+        b = np.concatenate([-G.sum(axis=1, keepdims=True), G], axis=1)      # (k, 4, 3)
+        dots = np.einsum("kai,kbi->kab", b, b)
+        K = (lam * np.einsum("kai,kbj->kaibj", b, b)
+             + mu * dots[:, :, None, :, None] * eye[None, None, :, None, :]
+             + mu * np.einsum("kbi,kaj->kaibj", b, b))
+        K = K.reshape(-1, 12, 12) * volume[:, None, None]
+        out[start:start + chunk] = np.linalg.eigvalsh(K)[:, -1]
+    return out
+
+
+def element_frequency_bound(model, x=None):
+    """Largest ``lambda_max(K_e) / (rho V0_e / 4)`` over the tets [1/s^2] (Irons & Treharne 1971).
+
+    At rest an upper bound of ``lambda_max(M^-1 K)`` (held components and the ground aside): each
+    tet's corner masses are part of its vertices' lumped masses.
+    """
+    density = float(model.mass.sum() / model.rest_volume.sum())        # masses are rho V0 / 4 per corner
+    return float(np.max(element_stiffness_maxima(model, x) / (0.25 * density * model.rest_volume)))
+
+
+def nodal_frequency_bound(model, x=None):
+    """``max_i sum_{e at i} lambda_max(K_e) / m_i`` over the free vertices [1/s^2], plus the ground term.
+
+    At rest an upper bound of ``lambda_max(M^-1 K)``: ``u^T K u = sum_e u_e^T K_e u_e <=
+    sum_e lambda_max(K_e) |u_e|^2 = sum_i |u_i|^2 sum_{e at i} lambda_max(K_e)``.  It is a mass-weighted
+    average of the per-element bounds at each vertex, so never above ``element_frequency_bound``.
+    The ground adds ``max(contact_stiffness_bound / mass)`` (Weyl), as in ``largest_frequency_squared``.
+    """
+    k = element_stiffness_maxima(model, x)
+    per_vertex = np.zeros(model.node_count)
+    np.add.at(per_vertex, model.tets.ravel(), np.repeat(k, 4))
+    free = (~np.asarray(model.held).all(axis=1)) & (model.inv_mass > 0.0)
+    if not free.any():
+        return 0.0
+    bound = float(np.max(per_vertex[free] * model.inv_mass[free]))
+    if model.has_ground:
+        ground = model.contact_stiffness_bound * model.inv_mass
+        bound += float(np.max(np.where(free & ~np.asarray(model.held)[:, 2], ground, 0.0)))
+    return bound

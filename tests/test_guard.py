@@ -1,0 +1,150 @@
+"""Stability on stiff and extreme cases: the dt policies, the per-frame re-check of the stable step
+on the deformed mesh, the blow-up guard, and inversion recovery.
+
+Every run here writes a file; the autouse fixture of conftest.py checks that no written file
+holds a non-finite number.
+"""
+
+import h5py
+import numpy as np
+import pytest
+
+from softsim.errors import ConfigError, SimulationError
+from softsim.simulation import prepare, simulate
+
+CUBE = {"shape": "box", "size": [0.1, 0.1, 0.1], "element_size": 0.025, "structured": True}
+RUBBER = {"youngs_modulus": 1.0e5, "poissons_ratio": 0.3, "density": 1000.0}
+
+
+def volume_ratios(f, frame=-1):
+    """J of every tet in frame ``frame`` of an open output file."""
+    X = f["mesh/points"][:]
+    x = f["frames/points"][frame]
+    t = f["mesh/tets"][:]
+    return np.linalg.det(x[t][:, 1:] - x[t][:, :1]) / np.linalg.det(X[t][:, 1:] - X[t][:, :1])
+
+
+def crushed_cube(scene, model, duration=0.5):
+    """A 10 cm cube whose top face is pushed down to a tenth of its height over ``duration``."""
+    return scene(mesh=CUBE, material={"model": model, **RUBBER}, gravity=[0, 0, 0], damping=5.0,
+                 fixed=[{"min": [-1, -1, -1e-6], "max": [1, 1, 1e-6]},
+                        {"min": [-1, -1, 0.1 - 1e-6], "max": [1, 1, 1], "velocity": [0, 0, -0.09 / duration]}],
+                 time={"duration": duration}, output={"frame_interval": duration / 20})
+
+
+@pytest.mark.parametrize("model, rest_step_survives", [("neohookean", False), ("corotated", True)])
+def test_crushed_cube_stays_stable_because_the_step_is_rechecked(scene, tmp_path, model, rest_step_survives):
+    """Squashed to 1/10 of its height.  The kernels are total-Lagrangian (rest gradients, rest
+    masses), so the stable step changes only with the material's tangent stiffness: neohookean
+    stiffens where the cube bulges, and a step of 0.8x the rest-state estimate (stable at rest)
+    blows up under ``allow``, while ``substep`` re-checks the eigenvalue limit, splits the step and
+    finishes.  Corotated's tangent stays bounded under compression: the rest step survives."""
+    s = crushed_cube(scene, model)
+    given = 0.8 * prepare(s).dt_estimate
+
+    def with_dt(policy):
+        return s.model_copy(update={"time": s.time.model_copy(update={"dt": given, "dt_policy": policy})})
+
+    summary = simulate(prepare(with_dt("substep")), tmp_path / "crush.h5")
+    with h5py.File(tmp_path / "crush.h5") as f:
+        assert f.attrs["status"] == "complete"
+        top = f["mesh/points"][:, 2] > 0.1 - 1e-6
+        t_end = f["frames/time"][-1]
+        np.testing.assert_allclose(f["frames/points"][-1][top, 2], 0.1 - 0.18 * t_end, atol=1e-12)
+        assert t_end >= 0.5
+    assert summary.frames >= 21
+
+    if rest_step_survives:
+        simulate(prepare(with_dt("allow")), tmp_path / "unchecked.h5")
+    else:
+        with pytest.raises(SimulationError, match="blew up"):
+            simulate(prepare(with_dt("allow")), tmp_path / "unchecked.h5")
+
+
+def test_crushed_stvk_cube_is_stopped_by_the_guard(scene, tmp_path):
+    """St. Venant-Kirchhoff softens under compression and collapses: the guard stops the run with
+    the element, time and step, keeps the frames before, and marks the file failed."""
+    with pytest.raises(SimulationError) as caught:
+        simulate(prepare(crushed_cube(scene, "stvk")), tmp_path / "stvk.h5")
+    message = str(caught.value)
+    assert "inverted" in message and "stvk" in message and "at t = " in message and "step" in message
+    with h5py.File(tmp_path / "stvk.h5") as f:
+        assert f.attrs["status"] == "failed" and f.attrs["status_reason"] == message
+        k = f["frames/time"].shape[0]
+        assert 1 < k < 21 and f["frames/points"].shape[0] == k
+        assert (volume_ratios(f) > 0).all()            # the written frames are all sound
+
+
+@pytest.mark.parametrize("model, mirror", [
+    ("neohookean", [[1, 0, 0], [0, -0.3, 0], [0, 0, 1]]),   # mirrored and squashed
+    ("corotated", [[1, 0, 0], [0, -0.3, 0], [0, 0, 1]]),
+    ("corotated", [[1, 0, 0], [0, 1, 0], [0, 0, 0.01]]),    # squashed nearly flat
+    ("neohookean", [[1, 0, 0], [0, 1, 0], [0, 0, 0.01]]),
+])
+def test_inverted_or_flattened_start_recovers(scene, tmp_path, model, mirror):
+    """Turned inside out (or flattened) at t = 0, the inversion-safe models push every element
+    back to positive volume and the cube returns to its rest shape (damped)."""
+    s = scene(mesh=CUBE, material={"model": model, **RUBBER}, gravity=[0, 0, 0], damping=20.0,
+              initial_deformation={"matrix": mirror}, time={"duration": 0.5}, output={"frame_interval": 0.05})
+    simulate(prepare(s), tmp_path / "inverted.h5")
+    with h5py.File(tmp_path / "inverted.h5") as f:
+        assert f.attrs["status"] == "complete"
+        assert (volume_ratios(f, 0) <= 0.011).all()     # it did start inverted / flat
+        np.testing.assert_allclose(volume_ratios(f), 1.0, atol=0.02)
+
+
+def test_an_exact_mirror_either_recovers_or_stops_cleanly(scene, tmp_path):
+    """Turned exactly inside out, a neohookean cube releases 2 lambda alpha of energy per unit
+    volume and its elements pass through flat at nearly the wave speed: a run either recovers or is
+    stopped with the squashed element named; never garbage."""
+    s = scene(mesh=CUBE, material={"model": "neohookean", **RUBBER}, gravity=[0, 0, 0], damping=20.0,
+              initial_deformation={"matrix": [[1, 0, 0], [0, 1, 0], [0, 0, -1]]},
+              time={"duration": 0.2}, output={"frame_interval": 0.05})
+    try:
+        simulate(prepare(s), tmp_path / "mirror.h5")
+    except SimulationError as exc:
+        assert "stable step fell" in str(exc) or "blew up" in str(exc)
+        with h5py.File(tmp_path / "mirror.h5") as f:
+            assert f.attrs["status"] == "failed" and f.attrs["status_reason"] == str(exc)
+    else:
+        with h5py.File(tmp_path / "mirror.h5") as f:
+            assert f.attrs["status"] == "complete" and (volume_ratios(f) > 0).all()
+
+
+def test_a_too_large_dt_under_allow_is_caught_by_the_guard(scene, tmp_path):
+    """Three times the estimated limit, used as given: the guard stops the run at the first frame
+    where the energy is far above what was put in (or a value is non-finite), with a readable file."""
+    base = scene(mesh=CUBE, material={"model": "neohookean", **RUBBER},
+                 fixed=[{"min": [-1, -1, -1e-6], "max": [1, 1, 1e-6]}],
+                 time={"duration": 0.5}, output={"frame_interval": 0.01})
+    too_large = 3.0 * prepare(base).dt_estimate
+    s = base.model_copy(update={"time": base.time.model_copy(update={"dt": too_large, "dt_policy": "allow"})})
+    with pytest.raises(SimulationError, match=r"blew up at t = .* s \(step \d+\).*vertex \d+"):
+        simulate(prepare(s), tmp_path / "allow.h5")
+    with h5py.File(tmp_path / "allow.h5") as f:
+        assert f.attrs["status"] == "failed" and "blew up" in f.attrs["status_reason"]
+        assert f["frames/time"].shape[0] >= 1
+
+
+def test_refuse_refuses_before_any_output_and_substep_agrees_with_auto(scene, tmp_path):
+    """refuse: a ConfigError naming the given and the stable step, before any file exists.
+    substep: the given step split into equal stable sub-steps gives the auto run's answer."""
+    base = scene(mesh=CUBE, material={"model": "neohookean", **RUBBER},
+                 fixed=[{"min": [-1, -1, -1e-6], "max": [1, 1, 1e-6]}],
+                 time={"duration": 0.1}, output={"frame_interval": 0.01})
+    auto = prepare(base)
+    given = 0.01                       # one step per frame: far above the stable step
+    with pytest.raises(ConfigError, match=r"time.dt = 0.01: above the stable step"):
+        prepare(base.model_copy(update={"time": base.time.model_copy(update={"dt": given, "dt_policy": "refuse"})}))
+    assert not any(tmp_path.glob("*.h5"))
+
+    sub = prepare(base.model_copy(update={"time": base.time.model_copy(update={"dt": given})}))
+    assert sub.substeps == round(given / sub.plan.dt) > 1 and sub.plan.dt <= auto.safe_dt
+    simulate(auto, tmp_path / "auto.h5")
+    simulate(sub, tmp_path / "sub.h5")
+    with h5py.File(tmp_path / "auto.h5") as a, h5py.File(tmp_path / "sub.h5") as b:
+        np.testing.assert_allclose(a["frames/time"][:], b["frames/time"][:], rtol=1e-12)
+        sag = np.abs(a["frames/points"][-1] - a["mesh/points"][:]).max()
+        assert sag > 1e-4                               # it moved
+        # both are O(dt) approximations of the same motion with nearby steps
+        np.testing.assert_allclose(b["frames/points"][-1], a["frames/points"][-1], atol=0.02 * sag)
