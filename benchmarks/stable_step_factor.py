@@ -8,7 +8,7 @@ nodes, which have slivers), Poisson ratios and Young's moduli, this measures
 
 where ``exact_stable_step = 2 / sqrt(lambda_max(M^-1 K))`` (``softsim.integrators.stability``,
 Lanczos on the tangent stiffness at rest) and the altitude estimate is ``h_min / c_p``, what
-``simulation.stable_dt_estimate`` returns (``timestep.stable_step_estimate``).  ``dt: auto`` runs
+``timestep.stable_step_estimate`` gives (softsim used it before the nodal bound).  ``dt: auto`` ran
 at ``AUTO_SAFETY x`` the estimate, so it is safe where ``AUTO_SAFETY <= ratio`` and not wasteful
 (true limit at most 2x the step in use) where ``ratio <= 2 AUTO_SAFETY``.
 
