@@ -53,7 +53,8 @@ class Prepared:
 
 @dataclass(frozen=True)
 class RunSummary:
-    """What a finished run reports: steps, dt [s], wall time [s], tet-steps per second, output path."""
+    """What a finished run reports: planned steps, dt [s], wall time [s], tet-steps per second
+    (counting sub-steps), frames and the output path."""
 
     steps: int
     dt: float
@@ -140,13 +141,17 @@ def step(model, state, dt, step_count, damping, corner_forces):
 
 
 def advance_substeps(model, state, dt, step_count, substeps, damping, corner_forces):
-    """Advance ``state`` by ``step_count`` steps of ``dt`` [s], each split into ``substeps`` equal ones."""
+    """Advance ``state`` by ``step_count`` steps of ``dt`` [s], each split into ``substeps`` equal ones.
+
+    Returns the number of steps taken (``step_count * substeps``).
+    """
     if substeps == 1:
         step(model, state, dt, step_count, damping, corner_forces)
-        return
+        return step_count
     fine = State(x=state.x, v=state.v, step=state.step * substeps, held_start=state.held_start)
     step(model, fine, dt / substeps, step_count * substeps, damping, corner_forces)
     state.step += step_count
+    return step_count * substeps
 
 
 def simulate(prepared, output_path, progress=None):
@@ -173,12 +178,15 @@ def simulate(prepared, output_path, progress=None):
                    plan.dt, plan.total_steps, fields) as writer:
         substeps = guard.check(state, 0.0)
         write_frame(writer)
+        steps_taken = 0
         for target in plan.frame_steps[1:]:
             steps = target - state.step
             while target - state.step > RECHECK_STEPS:
-                advance_substeps(model, state, plan.dt, RECHECK_STEPS, substeps, scene.damping, corner_forces)
+                steps_taken += advance_substeps(model, state, plan.dt, RECHECK_STEPS, substeps, scene.damping,
+                                                corner_forces)
                 substeps = guard.recheck_step(state, state.step * plan.dt)
-            advance_substeps(model, state, plan.dt, target - state.step, substeps, scene.damping, corner_forces)
+            steps_taken += advance_substeps(model, state, plan.dt, target - state.step, substeps, scene.damping,
+                                            corner_forces)
             guard.record_held_work(state, steps * plan.dt)
             substeps = guard.check(state, state.step * plan.dt)
             write_frame(writer)
@@ -187,7 +195,7 @@ def simulate(prepared, output_path, progress=None):
         frames = writer.frame_count
     wall = _time.perf_counter() - started
     return RunSummary(steps=plan.total_steps, dt=plan.dt, wall_time_s=wall,
-                      tet_steps_per_s=model.tet_count * plan.total_steps / max(wall, 1e-12),
+                      tet_steps_per_s=model.tet_count * steps_taken / max(wall, 1e-12),
                       frames=frames, path=str(output_path))
 
 
