@@ -69,3 +69,7 @@ cli.add_command(mesh_command.mesh)
 
 def main():
     cli(prog_name="softsim")
+
+
+if __name__ == "__main__":
+    main()

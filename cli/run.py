@@ -1,6 +1,8 @@
 """``softsim run``: simulate a scene and write its frames to HDF5 (+ XDMF for ParaView)."""
 
+import contextlib
 import logging
+import signal
 import sys
 
 import click
@@ -24,12 +26,41 @@ def _progress_bar(total_steps):
     return tqdm(total=total_steps, unit="step", file=sys.stderr, leave=False, dynamic_ncols=True)
 
 
+EXIT_INTERRUPTED = 130
+
+
+@contextlib.contextmanager
+def stop_on_signals():
+    """While inside, Ctrl-C and SIGTERM ask the run to stop after the current frame.
+
+    Yields a callable telling whether a stop was asked; a second Ctrl-C stops at once.
+    """
+    asked = []
+
+    def handler(signum, frame):
+        if asked and signum == signal.SIGINT:
+            raise KeyboardInterrupt
+        asked.append(signum)
+
+    try:
+        previous = {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
+    except ValueError:          # not the main thread: signals stay as they are
+        yield lambda: False
+        return
+    try:
+        yield lambda: bool(asked)
+    finally:
+        for sig, old in previous.items():
+            signal.signal(sig, old)
+
+
 @click.command()
 @scene_argument
 @click.option("-o", "--output", type=click.Path(path_type=str), default=None,
               help="Output HDF5 file (default: the scene's output.path).")
+@click.option("--overwrite", is_flag=True, help="Replace an existing output file.")
 @set_option
-def run(scene, output, overrides):
+def run(scene, output, overwrite, overrides):
     """Simulate SCENE (a YAML scene file) and write its frames to an HDF5 file.
 
     \b
@@ -41,7 +72,7 @@ def run(scene, output, overrides):
     if output is not None:   # the stored config says where the run really went
         scene_config = scene_config.model_copy(
             update={"output": scene_config.output.model_copy(update={"path": output})})
-    check_writable(scene_config.output.path)   # before meshing: a bad path costs no work
+    check_writable(scene_config.output.path, overwrite)   # before meshing: a bad path costs no work
     prepared = prepare(scene_config)
     log.info("mesh: %s", format_quality(prepared.mesh.quality()))
     plan = prepared.plan
@@ -51,9 +82,14 @@ def run(scene, output, overrides):
     bar = _progress_bar(plan.total_steps)
     update = None if bar is None else (lambda done, total: bar.update(done - bar.n))
     try:
-        summary = simulate(prepared, scene_config.output.path, update)
+        with stop_on_signals() as should_stop:
+            summary = simulate(prepared, scene_config.output.path, update, should_stop)
     finally:
         if bar is not None:
             bar.close()
     click.echo(f"{summary.path}: {summary.steps} steps, dt {summary.dt:.4g} s, {summary.frames} frames, "
                f"wall {summary.wall_time_s:.2f} s, {summary.tet_steps_per_s / 1e6:.3g} M tet-steps/s")
+    if summary.status == "interrupted":
+        click.echo(f"softsim: interrupted at t = {summary.time:.6g} s; {summary.frames} frames kept in "
+                   f"{summary.path} (status: interrupted)", err=True)
+        sys.exit(EXIT_INTERRUPTED)

@@ -62,6 +62,8 @@ class RunSummary:
     tet_steps_per_s: float
     frames: int
     path: str
+    status: str = "complete"      # or "interrupted" (stopped on request after a whole frame)
+    time: float = 0.0             # simulated time reached [s]
 
 
 def stable_dt_estimate(model):
@@ -154,11 +156,14 @@ def advance_substeps(model, state, dt, step_count, substeps, damping, corner_for
     return step_count * substeps
 
 
-def simulate(prepared, output_path, progress=None):
+def simulate(prepared, output_path, progress=None, should_stop=None):
     """Run a prepared scene, writing frames to ``output_path``; returns a ``RunSummary``.
 
     progress: optional callable ``progress(steps_done, total_steps)`` called after every frame.
-    On an exception or Ctrl-C the file keeps its frames and gets status ``failed`` / ``interrupted``.
+    should_stop: optional callable checked after every frame; when it returns True the run ends
+    there, cleanly, with status ``interrupted`` (a signal handler sets it: Ctrl-C, SIGTERM).
+    On an exception or KeyboardInterrupt the file keeps its frames and gets status ``failed`` /
+    ``interrupted``.
     """
     scene, model, plan = prepared.scene, prepared.model, prepared.plan
     check_writable(output_path)
@@ -192,11 +197,19 @@ def simulate(prepared, output_path, progress=None):
             write_frame(writer)
             if progress is not None:
                 progress(state.step, plan.total_steps)
-        frames = writer.frame_count
+            if should_stop is not None and should_stop() and state.step < plan.total_steps:
+                status = "interrupted"
+                frames = writer.frame_count
+                writer.finish(status, f"stopped on request at t = {state.step * plan.dt:.6g} s "
+                                      f"(step {state.step} of {plan.total_steps})")
+                break
+        else:
+            status = "complete"
+            frames = writer.frame_count
     wall = _time.perf_counter() - started
     return RunSummary(steps=plan.total_steps, dt=plan.dt, wall_time_s=wall,
                       tet_steps_per_s=model.tet_count * steps_taken / max(wall, 1e-12),
-                      frames=frames, path=str(output_path))
+                      frames=frames, path=str(output_path), status=status, time=state.step * plan.dt)
 
 
 def run(scene, output_path=None, progress=None):

@@ -36,8 +36,9 @@ def xdmf_path_for(path):
     return Path(path).with_suffix(".xdmf")
 
 
-def check_writable(path):
-    """Raise ``SimulationError`` if ``path``'s folder is missing or not writable (before any work)."""
+def check_writable(path, overwrite=True):
+    """Raise ``SimulationError`` if ``path``'s folder is missing or not writable, or if ``path``
+    exists and ``overwrite`` is False (checked before any work)."""
     folder = Path(path).resolve().parent
     if not folder.is_dir():
         raise SimulationError(f"output.path = '{path}': folder {folder} does not exist")
@@ -45,6 +46,8 @@ def check_writable(path):
         raise SimulationError(f"output.path = '{path}': folder {folder} is not writable")
     if Path(path).is_dir():
         raise SimulationError(f"output.path = '{path}': is a directory, expected a file name like out.h5")
+    if not overwrite and Path(path).exists():
+        raise SimulationError(f"output.path = '{path}': the file exists; pass --overwrite to replace it")
     if xdmf_path_for(path).resolve() == Path(path).resolve():
         raise SimulationError(f"output.path = '{path}': is the name of the XDMF file written beside the "
                               f"HDF5 file; use an HDF5 name like out.h5")

@@ -1,0 +1,88 @@
+"""Clean stops and output safety: SIGTERM / Ctrl-C end a run after a whole frame with status
+``interrupted`` and exit code 130; an existing output file is never silently overwritten."""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import h5py
+import pytest
+from click.testing import CliRunner
+
+from softsim.cli.main import cli
+
+SCENE = """\
+mesh: {shape: box, size: [0.3, 0.1, 0.1], element_size: 0.05, structured: true}
+material: {model: stvk, youngs_modulus: 1.0e6, poissons_ratio: 0.3, density: 1000.0}
+fixed: [{min: [-1.0e-6, -1, -1], max: [1.0e-6, 1, 1]}]
+time: {duration: DURATION}
+output: {path: out.h5, frame_interval: 0.001, fields: [velocities]}
+"""
+
+
+def write_scene(folder, duration):
+    path = Path(folder) / "scene.yaml"
+    path.write_text(SCENE.replace("DURATION", str(duration)))
+    return path
+
+
+def frame_count(path):
+    """Frames written so far, read without locking while the run is writing (0 if not readable yet)."""
+    try:
+        with h5py.File(path, "r", locking=False) as f:
+            return f["frames/time"].shape[0]
+    except (OSError, KeyError):
+        return 0
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_a_signal_ends_the_run_after_a_whole_frame(tmp_path, sig):
+    scene = write_scene(tmp_path, 1000.0)          # far longer than the test waits
+    out = tmp_path / "out.h5"
+    process = subprocess.Popen([sys.executable, "-m", "softsim.cli.main", "run", str(scene), "-o", str(out)],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 120             # room for a first JIT compilation
+        while frame_count(out) < 3:
+            assert process.poll() is None, process.communicate()
+            assert time.monotonic() < deadline, "no frames written in time"
+            time.sleep(0.05)
+        os.kill(process.pid, sig)
+        stdout, stderr = process.communicate(timeout=60)
+    finally:
+        if process.poll() is None:
+            process.kill()
+    assert process.returncode == 130, stderr
+    assert "Traceback" not in stderr
+    assert "interrupted at t = " in stderr.splitlines()[-1]
+    with h5py.File(out, "r") as f:
+        assert f.attrs["status"] == "interrupted"
+        assert "stopped on request at t = " in f.attrs["status_reason"]
+        k = f["frames/time"].shape[0]
+        assert k >= 3
+        assert f["frames/points"].shape[0] == k and f["frames/velocities"].shape[0] == k
+        assert f["frames/time"][-1] < 1000.0
+        assert f["state"].attrs["step"] > 0 and f["state"].attrs["time"] == f["frames/time"][-1]
+
+
+def test_an_existing_output_is_not_overwritten_without_the_flag(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    scene = write_scene(tmp_path, 0.002)
+    runner = CliRunner()
+    first = runner.invoke(cli, ["run", str(scene)])
+    assert first.exit_code == 0, first.output
+    before = (tmp_path / "out.h5").stat().st_mtime_ns
+
+    again = runner.invoke(cli, ["run", str(scene)])
+    assert again.exit_code != 0
+    assert again.stderr.strip().splitlines() == [
+        "Error: output.path = 'out.h5': the file exists; pass --overwrite to replace it"]
+    assert (tmp_path / "out.h5").stat().st_mtime_ns == before
+
+    replaced = runner.invoke(cli, ["run", str(scene), "--overwrite"])
+    assert replaced.exit_code == 0, replaced.output
+    with h5py.File(tmp_path / "out.h5") as f:
+        assert f.attrs["status"] == "complete"
