@@ -10,7 +10,7 @@ import click
 from softsim.config import load_scene
 from softsim.io.hdf5 import check_writable
 from softsim.mesh import format_quality
-from softsim.simulation import prepare, simulate
+from softsim.simulation import check_resumable, prepare, simulate
 
 from .options import scene_argument, set_option
 
@@ -59,8 +59,10 @@ def stop_on_signals():
 @click.option("-o", "--output", type=click.Path(path_type=str), default=None,
               help="Output HDF5 file (default: the scene's output.path).")
 @click.option("--overwrite", is_flag=True, help="Replace an existing output file.")
+@click.option("--resume", is_flag=True,
+              help="Continue an interrupted or crashed run in the output file from its last complete frame.")
 @set_option
-def run(scene, output, overwrite, overrides):
+def run(scene, output, overwrite, resume, overrides):
     """Simulate SCENE (a YAML scene file) and write its frames to an HDF5 file.
 
     \b
@@ -72,7 +74,12 @@ def run(scene, output, overwrite, overrides):
     if output is not None:   # the stored config says where the run really went
         scene_config = scene_config.model_copy(
             update={"output": scene_config.output.model_copy(update={"path": output})})
-    check_writable(scene_config.output.path, overwrite)   # before meshing: a bad path costs no work
+    if resume and overwrite:
+        raise click.UsageError("--resume and --overwrite exclude each other")
+    if resume:
+        check_resumable(scene_config, scene_config.output.path)
+    else:
+        check_writable(scene_config.output.path, overwrite)   # before meshing: a bad path costs no work
     prepared = prepare(scene_config)
     log.info("mesh: %s", format_quality(prepared.mesh.quality()))
     plan = prepared.plan
@@ -83,7 +90,7 @@ def run(scene, output, overwrite, overrides):
     update = None if bar is None else (lambda done, total: bar.update(done - bar.n))
     try:
         with stop_on_signals() as should_stop:
-            summary = simulate(prepared, scene_config.output.path, update, should_stop)
+            summary = simulate(prepared, scene_config.output.path, update, should_stop, resume=resume)
     finally:
         if bar is not None:
             bar.close()

@@ -9,12 +9,13 @@ import logging
 import math
 import time as _time
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
 from .config import scene_to_yaml
 from .integrators.symplectic_euler import advance
-from .errors import ConfigError
+from .errors import ConfigError, SimulationError
 from .integrators.guard import RECHECK_STEPS, FrameGuard
 from .integrators.stability import exact_stable_step, nodal_frequency_bound
 from .integrators.timestep import AUTO_SAFETY, dilatational_wave_speed, plan_time
@@ -156,35 +157,50 @@ def advance_substeps(model, state, dt, step_count, substeps, damping, corner_for
     return step_count * substeps
 
 
-def simulate(prepared, output_path, progress=None, should_stop=None):
+def simulate(prepared, output_path, progress=None, should_stop=None, resume=False):
     """Run a prepared scene, writing frames to ``output_path``; returns a ``RunSummary``.
 
     progress: optional callable ``progress(steps_done, total_steps)`` called after every frame.
     should_stop: optional callable checked after every frame; when it returns True the run ends
     there, cleanly, with status ``interrupted`` (a signal handler sets it: Ctrl-C, SIGTERM).
+    resume: continue the run already in ``output_path`` from its last complete frame (see
+    ``check_resumable``); on the same machine and thread count the trajectory is the same, bit
+    for bit, as a run that never stopped.
     On an exception or KeyboardInterrupt the file keeps its frames and gets status ``failed`` /
     ``interrupted``.
     """
     scene, model, plan = prepared.scene, prepared.model, prepared.plan
-    check_writable(output_path)
     state = initial_state(scene, model)
     fields = scene.output.fields
     corner_forces = np.empty((model.tet_count, 4, 3))
+    guard = FrameGuard(model, prepared.wave_speed, plan.dt, scene.time.dt_policy, state)
 
     def write_frame(writer):
         energy = frame_energy(model, state) if "energy" in fields else None
         writer.append_frame(state.step * plan.dt, state.step, model.to_user_order(state.x),
-                            model.to_user_order(state.v), energy)
+                            model.to_user_order(state.v), energy, guard.snapshot())
 
-    fixed = model.to_user_order(model.fixed)
-    guard = FrameGuard(model, prepared.wave_speed, plan.dt, scene.time.dt_policy, state)
     started = _time.perf_counter()
-    with RunWriter(output_path, model.mesh.points, model.mesh.tets, fixed, scene_to_yaml(scene),
-                   plan.dt, plan.total_steps, fields) as writer:
-        substeps = guard.check(state, 0.0)
-        write_frame(writer)
+    if resume:
+        writer, stored = RunWriter.reopen(output_path, fields)
+        state.x[...] = model.from_user_order(stored["positions"])
+        state.v[...] = model.from_user_order(stored["velocities"])
+        state.step = int(stored["step"])
+        guard.restore(stored)
+        substeps = guard.substeps if scene.time.dt_policy != "allow" else 1
+    else:
+        check_writable(output_path)
+        writer = RunWriter(output_path, model.mesh.points, model.mesh.tets, model.to_user_order(model.fixed),
+                           scene_to_yaml(scene), plan.dt, plan.total_steps, fields)
+    with writer:
+        if not resume:
+            substeps = guard.check(state, 0.0)
+            write_frame(writer)
         steps_taken = 0
-        for target in plan.frame_steps[1:]:
+        status = "complete"
+        for target in plan.frame_steps:
+            if target <= state.step:
+                continue
             steps = target - state.step
             while target - state.step > RECHECK_STEPS:
                 steps_taken += advance_substeps(model, state, plan.dt, RECHECK_STEPS, substeps, scene.damping,
@@ -204,12 +220,53 @@ def simulate(prepared, output_path, progress=None, should_stop=None):
                                       f"(step {state.step} of {plan.total_steps})")
                 break
         else:
-            status = "complete"
             frames = writer.frame_count
     wall = _time.perf_counter() - started
     return RunSummary(steps=plan.total_steps, dt=plan.dt, wall_time_s=wall,
                       tet_steps_per_s=model.tet_count * steps_taken / max(wall, 1e-12),
                       frames=frames, path=str(output_path), status=status, time=state.step * plan.dt)
+
+
+def check_resumable(scene, output_path):
+    """Raise ``SimulationError`` unless ``output_path`` holds an unfinished run of this same scene.
+
+    The stored ``config`` must equal the scene's (all but ``output.path``): resuming a changed
+    scene would splice two different simulations.
+    """
+    import h5py
+    import yaml
+
+    path = Path(output_path)
+    if not path.is_file():
+        raise SimulationError(f"--resume: '{output_path}' does not exist; there is nothing to resume")
+    try:
+        with h5py.File(path, "r") as f:
+            status = str(f.attrs.get("status", ""))
+            stored_yaml = str(f.attrs["config"])
+            has_state = "state/positions" in f and "step" in f["state"].attrs
+    except (OSError, KeyError) as exc:
+        raise SimulationError(f"--resume: '{output_path}' is not a softsim output file ({exc})") from None
+    if status == "complete":
+        raise SimulationError(f"--resume: '{output_path}' is complete; there is nothing to resume")
+    if not has_state:
+        raise SimulationError(f"--resume: '{output_path}' has no state/ to resume from")
+    stored = yaml.safe_load(stored_yaml)
+    current = yaml.safe_load(scene_to_yaml(scene))
+    for d in (stored, current):
+        d.get("output", {}).pop("path", None)
+    if stored != current:
+        key = _first_difference(stored, current)
+        raise SimulationError(f"--resume: the scene changed since '{output_path}' was written ({key}); "
+                              f"resuming it would splice two different runs")
+
+
+def _first_difference(a, b, prefix=""):
+    """Dotted key of the first difference between two nested mappings (for messages)."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        for key in sorted(set(a) | set(b)):
+            if a.get(key) != b.get(key):
+                return _first_difference(a.get(key), b.get(key), f"{prefix}{key}.")
+    return f"{prefix.rstrip('.')}: {a!r} -> {b!r}"
 
 
 def run(scene, output_path=None, progress=None):

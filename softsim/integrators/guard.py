@@ -130,6 +130,20 @@ class FrameGuard:
                 f"{budget:.3g} J put in (fastest vertex {self._user_vertex(i)}); use a smaller dt or dt: auto")
         return self._substeps(state, time)
 
+    def snapshot(self):
+        """What a resumed run needs to take the same decisions: dict of arrays and numbers."""
+        return {"guard_J_seen": self.J_seen.copy(), "guard_stretch_seen": self.stretch_seen.copy(),
+                "guard_substeps": int(self.substeps), "guard_held_work": float(self.held_work),
+                "guard_held_power": float(self.held_power)}
+
+    def restore(self, snapshot):
+        """Take back a ``snapshot`` stored with the frame a run resumes from."""
+        self.J_seen[:] = snapshot["guard_J_seen"]
+        self.stretch_seen[:] = snapshot["guard_stretch_seen"]
+        self.substeps = int(snapshot["guard_substeps"])
+        self.held_work = float(snapshot["guard_held_work"])
+        self.held_power = float(snapshot["guard_held_power"])
+
     def _check_finite(self, state, where):
         bad = ~(np.isfinite(state.x).all(axis=1) & np.isfinite(state.v).all(axis=1))
         if bad.any():

@@ -96,14 +96,47 @@ class RunWriter:
         state.attrs.update(time=0.0, step=0)
         f.flush()
 
+    @classmethod
+    def reopen(cls, path, fields=(), xdmf=True):
+        """``(writer, state)`` to continue the run in ``path`` from its last complete frame.
+
+        ``state`` is a dict of ``state/``: ``positions``, ``velocities`` (n, 3) in the user's order,
+        ``time``, ``step`` and any extra arrays and numbers the run stored for a resume.  Frames
+        after that state (a frame cut off by a crash) are dropped; the status is ``running`` again.
+        """
+        self = cls.__new__(cls)
+        self.path = Path(path)
+        self.fields = tuple(fields)
+        self.xdmf = xdmf
+        self._xdmf_written_at = -np.inf
+        try:
+            self.file = h5py.File(self.path, "a")
+        except OSError as exc:
+            raise SimulationError(f"output.path = '{path}': cannot reopen the file to resume ({exc})") from None
+        f = self.file
+        self.node_count = f["mesh/points"].shape[0]
+        self.tet_count = f["mesh/tets"].shape[0]
+        state_group = f["state"]
+        state = {name: dataset[...] for name, dataset in state_group.items()}
+        state.update({name: value for name, value in state_group.attrs.items()})
+        kept = int(np.searchsorted(f["frames/time"][:], float(state["time"]), side="right"))
+        f["frames/time"].resize(kept, axis=0)
+        self._drop_partial_frame()
+        self._started = _time.perf_counter() - float(f.attrs["wall_time_s"])
+        f.attrs.update(status="running", status_reason="")
+        f.flush()
+        return self, state
+
     @property
     def frame_count(self):
         return self.file["frames/time"].shape[0]
 
-    def append_frame(self, time, step, points, velocities, energy=None):
+    def append_frame(self, time, step, points, velocities, energy=None, resume_state=None):
         """Append one frame and the resume state, then flush.
 
-        points, velocities: (n, 3) [m], [m/s] in the user's order; energy: dict of ENERGY_TERMS [J].
+        points, velocities: (n, 3) [m], [m/s] in the user's order; energy: dict of ENERGY_TERMS [J];
+        resume_state: optional dict of further arrays (stored as ``state/`` datasets) and numbers
+        (``state/`` attributes) a resume needs.
         ``frames/time`` grows last of the frame datasets, so its length counts only frames whose data
         is in place; ``state/`` is written after it.
         """
@@ -120,6 +153,13 @@ class RunWriter:
         state = self.file["state"]
         state["positions"][...] = points
         state["velocities"][...] = velocities
+        for name, value in (resume_state or {}).items():
+            if np.ndim(value) == 0:
+                state.attrs[name] = value
+            elif name in state:
+                state[name][...] = value
+            else:
+                state.create_dataset(name, data=value)
         state.attrs.update(time=float(time), step=int(step))
         self.file.attrs["wall_time_s"] = _time.perf_counter() - self._started
         self.file.flush()

@@ -1,0 +1,1 @@
+"""Reports on softsim's numerics (``softsim stability``)."""
