@@ -7,7 +7,14 @@ allowed.
 
 
 class SoftsimError(Exception):
-    """Base class of every error softsim raises on purpose."""
+    """Base class of every error softsim raises on purpose.
+
+    Its text is always one line: line breaks that come from user input (a YAML key with a newline,
+    a library's multi-line message) are shown escaped.
+    """
+
+    def __str__(self):
+        return super().__str__().replace("\r", "\\r").replace("\n", "\\n")
 
 
 class ConfigError(SoftsimError):

@@ -5,6 +5,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import ConfigError
 from ..materials.lame import lame_parameters
 
 # dt: auto = AUTO_SAFETY x the nodal-bound step (simulation.stable_dt_estimate), a rigorous
@@ -34,6 +35,11 @@ def stable_step_estimate(min_altitude, wave_speed, contact_stiffness=None, mass=
     return 1.0 / math.sqrt(inverse_square)
 
 
+# Plans beyond these are refused before anything runs (they could not finish or fit on disk).
+MAX_FRAMES = 1_000_000
+MAX_STEPS = 1e12
+
+
 @dataclass(frozen=True)
 class TimePlan:
     """Steps and frames of a run: frame ``j`` is written after ``frame_steps[j]`` steps."""
@@ -55,11 +61,18 @@ def plan_time(duration, frame_interval, dt=None, max_dt=None):
     nearest whole number of steps to ``frame_interval``.  The last frame is at the end of the run,
     ``total_steps * dt >= duration``.
     """
+    frames = duration / frame_interval
+    if not frames <= MAX_FRAMES:
+        raise ConfigError(f"output.frame_interval = {frame_interval:g}: with time.duration = {duration:g} s that is "
+                          f"{frames:.3g} frames; at most {MAX_FRAMES:.0e} are allowed")
     if dt is None:
         steps_per_frame = max(1, math.ceil(frame_interval / max_dt - 1e-9))
         dt = frame_interval / steps_per_frame
     else:
         steps_per_frame = max(1, round(frame_interval / dt))
+    if not duration / dt <= MAX_STEPS:
+        raise ConfigError(f"time.duration = {duration:g}: with dt = {dt:.3g} s that is {duration / dt:.3g} steps; "
+                          f"at most {MAX_STEPS:.0e} are allowed")
     total_steps = max(1, math.ceil(duration / dt - 1e-9))
     frame_steps = list(range(0, total_steps + 1, steps_per_frame))
     if frame_steps[-1] != total_steps:

@@ -1,10 +1,12 @@
 """Mesh stage: a checked, positively oriented tetrahedral mesh from a scene's ``mesh`` section."""
 
 import logging
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import MeshError
 from .checks import boundary_faces, check_not_degenerate, orient_positively
 from .quality import format_quality, quality_summary
 
@@ -37,10 +39,34 @@ class TetMesh:
         return quality_summary(self.points, self.tets)
 
 
+# Meshes estimated above this many tets are refused before meshing (about 10 GB of working memory).
+MAX_TETS = 50_000_000
+
+
+def estimated_tet_count(spec):
+    """Tets a generated shape will have at ``element_size`` (exact for structured boxes), or None for files."""
+    if spec.shape == "file":
+        return None
+    h = spec.element_size
+    if spec.shape == "box" and spec.structured:
+        return 5 * int(np.prod(np.maximum(1, np.rint(np.asarray(spec.size) / h))))
+    if spec.shape == "box":
+        volume = float(np.prod(spec.size))
+    elif spec.shape == "cylinder":
+        volume = math.pi * spec.radius ** 2 * spec.length
+    else:
+        volume = 4.0 / 3.0 * math.pi * spec.radius ** 3
+    return int(volume / (h ** 3 / (6.0 * math.sqrt(2.0))))    # regular tets of edge h
+
+
 def raw_tetrahedra(spec):
     """Unchecked (points, tets) for a scene's ``mesh`` section (``softsim.config.MeshSpec``)."""
     from . import generate, read
 
+    estimate = estimated_tet_count(spec)
+    if estimate is not None and estimate > MAX_TETS:
+        raise MeshError(f"mesh.element_size = {spec.element_size:g}: would make about {estimate:.3g} tetrahedra, "
+                        f"more than the {MAX_TETS:.0e} softsim meshes on one machine; use a larger element_size")
     if spec.shape == "file":
         return read.read_tetrahedra(spec.file)
     if spec.shape == "box" and spec.structured:
