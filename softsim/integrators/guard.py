@@ -127,7 +127,8 @@ class FrameGuard:
             i = int(np.argmax(speed))
             raise SimulationError(
                 f"the simulation blew up {where}: energy {mechanical:.3g} J is over {ENERGY_GUARD_FACTOR:g}x the "
-                f"{budget:.3g} J put in (fastest vertex {self._user_vertex(i)}); use a smaller dt or dt: auto")
+                f"{budget:.3g} J put in (fastest vertex {self._user_vertex(i)}); "
+                f"try a smaller time.dt (this run used {self.dt:.3g} s)")
         return self._substeps(state, time)
 
     def snapshot(self):
@@ -149,7 +150,7 @@ class FrameGuard:
         if bad.any():
             i = int(np.argmax(bad))
             raise SimulationError(f"the simulation blew up {where}: vertex {self._user_vertex(i)} is not finite; "
-                                  f"use a smaller dt or dt: auto")
+                                  f"try a smaller time.dt (this run used {self.dt:.3g} s)")
 
     def recheck_step(self, state, time):
         """Sub-steps per planned step, looking only at the deformation (between frames)."""
