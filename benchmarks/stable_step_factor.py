@@ -8,7 +8,7 @@ nodes, which have slivers), Poisson ratios and Young's moduli, this measures
 
 where ``exact_stable_step = 2 / sqrt(lambda_max(M^-1 K))`` (``softsim.integrators.stability``,
 Lanczos on the tangent stiffness at rest) and the altitude estimate is ``h_min / c_p``, what
-``timestep.stable_step_estimate`` gives (softsim used it before the nodal bound).  ``dt: auto`` ran
+``altitude_step_estimate`` below gives (softsim used it before the nodal bound).  ``dt: auto`` ran
 at ``AUTO_SAFETY x`` the estimate, so it is safe where ``AUTO_SAFETY <= ratio`` and not wasteful
 (true limit at most 2x the step in use) where ``ratio <= 2 AUTO_SAFETY``.
 
@@ -26,6 +26,7 @@ computation at about 10k and 100k tets.
 
 import argparse
 import dataclasses
+import math
 import statistics
 import time
 from collections import defaultdict
@@ -35,7 +36,7 @@ import numpy as np
 
 from softsim.config import parse_scene
 from softsim.integrators.stability import exact_stable_step, frequency_analysis, nodal_frequency_bound
-from softsim.integrators.timestep import AUTO_SAFETY, dilatational_wave_speed, stable_step_estimate
+from softsim.integrators.timestep import AUTO_SAFETY, dilatational_wave_speed
 from softsim.kernels.forces import elastic_forces
 from softsim.materials.models import MODEL_IDS, model_lame_parameters
 from softsim.mesh import checked_mesh
@@ -52,6 +53,15 @@ DENSITY = {1e5: 1000.0, 1e6: 1000.0, 1e7: 1100.0, 1e9: 1500.0, 2e11: 7850.0}   #
 # ---------------------------------------------------------------------------------------------
 # meshes
 
+
+
+def altitude_step_estimate(min_altitude, wave_speed, contact_stiffness=None, mass=None):
+    """The older stable-step estimate [s]: ``h_min / c_p``, combined with the ground's penalty
+    frequency as ``1/dt^2 = 1/dt_el^2 + (omega_max / 2)^2`` (kept here to measure it against)."""
+    inverse_square = (wave_speed / min_altitude) ** 2
+    if contact_stiffness is not None:
+        inverse_square += np.max(contact_stiffness / mass, initial=0.0) / 4.0
+    return 1.0 / math.sqrt(inverse_square)
 
 def perturbed_box(size, element_size, amount, seed=1):
     """Structured box whose interior nodes move by up to ``amount x`` the cell size per axis (slivers)."""
@@ -133,8 +143,8 @@ def altitude_estimate(scene, model, x=None):
     c_p = dilatational_wave_speed(m.youngs_modulus, m.poissons_ratio, m.density)
     h_min = float(altitudes(model.rest_points if x is None else x, model.tets).min())
     if model.has_ground:
-        return stable_step_estimate(h_min, c_p, model.contact_stiffness_bound, model.mass)
-    return stable_step_estimate(h_min, c_p)
+        return altitude_step_estimate(h_min, c_p, model.contact_stiffness_bound, model.mass)
+    return altitude_step_estimate(h_min, c_p)
 
 
 _model_cache = {}

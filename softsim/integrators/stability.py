@@ -23,7 +23,7 @@ assembling anything:
   contact at once, is added to ``A`` as the diagonal term ``contact_stiffness_bound[i] / mass[i]``
   on the z component of each free vertex.  Any real contact set has a subset of those springs, so
   its ``lambda_max`` is at most the one returned (and at most the elastic one plus
-  ``max(contact_stiffness_bound / mass)``, the bound ``timestep.stable_step_estimate`` uses).
+  ``max(contact_stiffness_bound / mass)``, the bound ``nodal_frequency_bound`` adds).
 
 Rigorous bounds at rest, from each tet's own 12 x 12 Hooke stiffness ``K_e`` (no iteration):
 ``element_frequency_bound`` (Irons & Treharne 1971: ``max_e lambda_max(M_e^-1 K_e)`` with the tet's

@@ -3,8 +3,6 @@
 import math
 from dataclasses import dataclass
 
-import numpy as np
-
 from ..errors import ConfigError
 from ..materials.lame import lame_parameters
 
@@ -19,20 +17,6 @@ def dilatational_wave_speed(youngs_modulus, poissons_ratio, density):
     """``c_p = sqrt((lambda + 2 mu) / rho)`` [m/s], the fastest wave of linear elasticity."""
     lam, mu = lame_parameters(youngs_modulus, poissons_ratio)
     return math.sqrt((lam + 2.0 * mu) / density)
-
-
-def stable_step_estimate(min_altitude, wave_speed, contact_stiffness=None, mass=None):
-    """Estimate of the largest stable step [s].
-
-    Elastic part: ``h_min / c_p`` (min_altitude [m], wave_speed [m/s]).  Ground contact: a vertex
-    of mass m on a penalty spring k oscillates at ``omega = sqrt(k / m)`` and symplectic Euler needs
-    ``dt < 2 / omega``; the two limits are combined as ``1/dt^2 = 1/dt_el^2 + (omega_max / 2)^2``.
-    """
-    inverse_square = (wave_speed / min_altitude) ** 2
-    if contact_stiffness is not None:
-        omega_squared = np.max(contact_stiffness / mass, initial=0.0)
-        inverse_square += omega_squared / 4.0
-    return 1.0 / math.sqrt(inverse_square)
 
 
 # Plans beyond these are refused before anything runs (they could not finish or fit on disk).

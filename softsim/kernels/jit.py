@@ -8,7 +8,7 @@ is a module-level function: Numba cannot cache closures.
 Numba checks a cached function only against its *own* source file, yet the machine code also
 contains every jitted function it calls from other files (a driver in ``forces.py`` inlines the
 material law of ``materials/models.py``).  Each cache entry is therefore also stamped with a hash
-of all of softsim's sources: editing any of them recompiles instead of running stale code.
+of the sources of the jitted packages: editing any of them recompiles instead of running stale code.
 """
 
 import hashlib
@@ -21,10 +21,20 @@ JIT_OPTIONS = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
 _PACKAGE_DIR = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
+# The packages whose functions are jitted or inlined into jitted code; editing the orchestration,
+# config, mesh or report modules must not recompile the kernels.
+_JITTED_PACKAGES = ("kernels", "materials", "integrators")
+
+
+def _walk_jitted_sources():
+    for package in _JITTED_PACKAGES:
+        yield from os.walk(os.path.join(_PACKAGE_DIR, package))
+
+
 def _package_source_hash():
-    """SHA-256 over the relative paths and contents of every ``.py`` file of the softsim package."""
+    """SHA-256 over the relative paths and contents of the ``.py`` files of ``_JITTED_PACKAGES``."""
     digest = hashlib.sha256()
-    for root, dirs, files in os.walk(_PACKAGE_DIR):
+    for root, dirs, files in _walk_jitted_sources():
         dirs[:] = sorted(d for d in dirs if d != "__pycache__")
         for name in sorted(f for f in files if f.endswith(".py")):
             path = os.path.join(root, name)
