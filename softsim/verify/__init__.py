@@ -1,0 +1,1 @@
+"""Verification cases with analytic answers: error against run time (softsim verify)."""

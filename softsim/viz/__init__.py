@@ -1,0 +1,1 @@
+"""Looking at results: info, plots, export and rendering of softsim output files."""
