@@ -11,6 +11,7 @@ from softsim.errors import SoftsimError
 from . import mesh as mesh_command
 from . import run as run_command
 from . import stability as stability_command
+from . import sweep as sweep_command
 
 EXIT_INTERRUPTED = 130
 
@@ -67,6 +68,7 @@ def cli(ctx, verbose, quiet):
 cli.add_command(run_command.run)
 cli.add_command(mesh_command.mesh)
 cli.add_command(stability_command.stability)
+cli.add_command(sweep_command.sweep)
 
 
 def main():

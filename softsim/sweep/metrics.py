@@ -1,0 +1,125 @@
+"""What the sweep summary says about one run, read back from the run's HDF5 file alone.
+
+The file is the record: a run finished in this sweep and one skipped because an earlier sweep
+finished it get their summary row from the same function, so the two rows are identical.
+"""
+
+from __future__ import annotations
+
+import math
+
+import h5py
+import numpy as np
+import yaml
+
+# Tip vertices: those within this fraction of the greatest distance from the held vertices.
+TIP_TOLERANCE = 1e-3
+
+METRIC_COLUMNS = ("status", "status_reason", "steps", "steps_done", "dt", "time", "wall_time_s",
+                  "tet_steps_per_s", "tets", "max_displacement", "final_kinetic_energy",
+                  "tip_x", "tip_y", "tip_z", "tip_displacement", "tip_dz")
+
+
+def tip_vertices(points, fixed):
+    """Indices of the "tip": the vertices farthest from the held ones (the far end face of a beam).
+
+    points: (n, 3) rest positions [m]; fixed: (n,) bool.  Distance is to the nearest held
+    vertex; vertices within ``TIP_TOLERANCE`` of the greatest distance count.  Empty without a
+    held vertex (a free body has no tip).
+    """
+    held = points[fixed]
+    if held.shape[0] == 0 or held.shape[0] == points.shape[0]:
+        return np.zeros(0, np.int64)
+    distance = np.full(points.shape[0], np.inf)
+    for start in range(0, held.shape[0], 256):     # (n, 256) blocks: memory stays small
+        block = held[start:start + 256]
+        d = np.sqrt(((points[:, None, :] - block[None, :, :]) ** 2).sum(axis=2)).min(axis=1)
+        np.minimum(distance, d, out=distance)
+    far = distance.max()
+    return np.flatnonzero(distance >= far * (1.0 - TIP_TOLERANCE))
+
+
+def lumped_masses(points, tets, density):
+    """Vertex masses [kg], (n,): each tet gives a quarter of ``density x |volume|`` to each corner."""
+    corners = points[tets]                                  # (m, 4, 3)
+    volume = np.abs(np.linalg.det(corners[:, 1:, :] - corners[:, :1, :])) / 6.0
+    mass = np.zeros(points.shape[0])
+    np.add.at(mass, tets.ravel(), np.repeat(density * volume / 4.0, 4))
+    return mass
+
+
+def run_metrics(path):
+    """The summary columns ``METRIC_COLUMNS`` of the run file ``path`` as a dict.
+
+    steps: planned steps; steps_done: steps reached at the last complete frame; time: its simulated
+    time [s]; tet_steps_per_s: tets x steps_done / wall_time_s (steps of the file's dt: sub-steps a
+    ``dt_policy: substep`` run took are not counted); max_displacement: largest |x - X| [m] over
+    every frame and vertex; final_kinetic_energy [J] at the last frame (lumped masses);
+    tip_x/y/z: mean position [m] of the tip vertices (``tip_vertices``) at the last frame,
+    tip_displacement: length of their mean displacement [m], tip_dz: its z component [m]
+    (negative = down); NaN without held vertices.
+    """
+    with h5py.File(path, "r") as f:
+        attrs = f.attrs
+        points = f["mesh/points"][...]
+        tets = f["mesh/tets"][...]
+        fixed = f["mesh/fixed"][...]
+        frames = f["frames/points"]
+        frame_count = f["frames/time"].shape[0]
+        max_displacement = 0.0
+        for start in range(0, frame_count, 64):
+            chunk = frames[start:min(start + 64, frame_count)]
+            max_displacement = max(max_displacement, float(np.sqrt(((chunk - points) ** 2).sum(axis=2)).max()))
+        final = frames[frame_count - 1] if frame_count else points
+        velocities = f["state/velocities"][...]
+        steps_done = int(f["state"].attrs.get("step", 0))
+        time = float(f["state"].attrs.get("time", 0.0))
+        config = yaml.safe_load(str(attrs["config"]))
+        row = {
+            "status": str(attrs.get("status", "")),
+            "status_reason": str(attrs.get("status_reason", "")),
+            "steps": int(attrs.get("steps", 0)),
+            "dt": float(attrs.get("dt", math.nan)),
+            "wall_time_s": float(attrs.get("wall_time_s", math.nan)),
+        }
+    density = float(config["material"]["density"])
+    mass = lumped_masses(points, tets, density)
+    wall = row["wall_time_s"]
+    row.update(
+        steps_done=steps_done,
+        time=time,
+        tets=int(tets.shape[0]),
+        tet_steps_per_s=tets.shape[0] * steps_done / wall if wall > 0 else math.nan,
+        max_displacement=max_displacement,
+        final_kinetic_energy=float(0.5 * (mass * (velocities ** 2).sum(axis=1)).sum()) if frame_count else 0.0,
+    )
+    tip = tip_vertices(points, fixed)
+    if tip.size:
+        position = final[tip].mean(axis=0)
+        displacement = (final[tip] - points[tip]).mean(axis=0)
+        row.update(tip_x=float(position[0]), tip_y=float(position[1]), tip_z=float(position[2]),
+                   tip_displacement=float(np.linalg.norm(displacement)), tip_dz=float(displacement[2]))
+    else:
+        row.update(tip_x=math.nan, tip_y=math.nan, tip_z=math.nan, tip_displacement=math.nan, tip_dz=math.nan)
+    return {column: row[column] for column in METRIC_COLUMNS}
+
+
+def stored_config(path):
+    """The scene stored in the run file ``path`` (a dict, ``output.path`` left out), or None if unreadable."""
+    try:
+        with h5py.File(path, "r") as f:
+            config = yaml.safe_load(str(f.attrs["config"]))
+    except (OSError, KeyError, yaml.YAMLError):
+        return None
+    if isinstance(config, dict):
+        config.get("output", {}).pop("path", None)
+    return config
+
+
+def stored_status(path):
+    """The ``status`` attribute of the run file ``path``, or None if it cannot be read."""
+    try:
+        with h5py.File(path, "r") as f:
+            return str(f.attrs.get("status", ""))
+    except OSError:
+        return None

@@ -1,0 +1,67 @@
+"""A plot of a sweep's summary table: one metric against one parameter, one line per value of another."""
+
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+
+from ..errors import ConfigError, MissingDependencyError
+
+
+def read_summary(path):
+    """The rows of ``summary.csv`` as dicts, numbers as float where they parse."""
+    def number(text):
+        try:
+            return float(text)
+        except ValueError:
+            return text
+    with open(path, newline="") as stream:
+        return [{key: number(value) if value != "" else math.nan for key, value in row.items()}
+                for row in csv.DictReader(stream)]
+
+
+def plot_summary(summary_path, image_path, x, y="tip_displacement", lines=None, y_scale=1.0,
+                 y_label=None, log_x=True, title=None):
+    """Plot column ``y`` (x ``y_scale``) of ``summary_path`` against column ``x``, one line per value of ``lines``.
+
+    Only complete runs are drawn; failed ones are listed in the legend as not drawn.  Needs
+    matplotlib (``pip install 'softsim[plot]'``).  Returns ``image_path``.
+    """
+    try:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        raise MissingDependencyError("the sweep plot needs matplotlib: pip install 'softsim[plot]'") from None
+    rows = read_summary(summary_path)
+    if not rows:
+        raise ConfigError(f"{summary_path}: the summary has no runs")
+    for column in (x, y, lines):
+        if column is not None and column not in rows[0]:
+            columns = ", ".join(rows[0])
+            raise ConfigError(f"plot column {column!r}: not in {summary_path} (columns: {columns})")
+    groups = {}
+    for row in rows:
+        groups.setdefault(row[lines] if lines else None, []).append(row)
+    figure, axes = plt.subplots(figsize=(6.4, 4.4), dpi=120)
+    for value, group in sorted(groups.items(), key=lambda item: str(item[0])):
+        done = sorted((row for row in group if row["status"] == "complete"), key=lambda row: row[x])
+        failed = len(group) - len(done)
+        label = f"{lines.rsplit('.', 1)[-1]} = {value:g}" if isinstance(value, float) else str(value or y)
+        if failed:
+            label += f" ({failed} failed, not drawn)"
+        axes.plot([row[x] for row in done], [row[y] * y_scale for row in done], "o-", label=label)
+    if log_x:
+        axes.set_xscale("log")
+    axes.set_xlabel(x)
+    axes.set_ylabel(y_label or y)
+    axes.grid(True, which="both", alpha=0.3)
+    axes.legend()
+    if title:
+        axes.set_title(title)
+    figure.tight_layout()
+    Path(image_path).parent.mkdir(parents=True, exist_ok=True)
+    figure.savefig(image_path)
+    plt.close(figure)
+    return Path(image_path)

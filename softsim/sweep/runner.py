@@ -1,0 +1,423 @@
+"""Running a sweep's runs on Dask: a local cluster of process workers or an existing scheduler.
+
+The client validates every run and builds each distinct mesh once before anything is submitted;
+each worker runs one run at a time (one Dask thread, its share of the cores as Numba threads)
+and, unless the workers share the output folder, writes the HDF5 file to a local temporary
+folder and sends its bytes back for the client to write.  The summary row of every run is read
+from its file (``metrics.run_metrics``).
+
+Dask is imported only here and only when a sweep runs: a plain ``pip install softsim`` works
+without it, and ``import_distributed`` names the extra to install.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import math
+import os
+import shutil
+import signal
+import socket
+import tempfile
+import threading
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Optional
+
+from ..config import scene_to_yaml
+from ..errors import MissingDependencyError, SimulationError, SoftsimError
+from ..io.hdf5 import xdmf_path_for
+from .metrics import METRIC_COLUMNS, run_metrics, stored_config, stored_status
+from .spec import Run
+
+log = logging.getLogger("softsim")
+
+SUMMARY_NAME = "summary"
+# Status in the summary of a run the sweep never finished (Ctrl-C): as a file's would be.
+NOT_FINISHED = "interrupted"
+
+
+def import_distributed():
+    """``dask.distributed``, or ``MissingDependencyError`` naming the extra that brings it."""
+    try:
+        import distributed
+    except ImportError as exc:
+        raise MissingDependencyError(
+            f"softsim sweep needs Dask ({exc.name or 'distributed'} is not installed): "
+            f"pip install 'softsim[sweep]'") from None
+    return distributed
+
+
+def machine_cores():
+    """Cores this process may run on."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:      # macOS, Windows
+        return os.cpu_count() or 1
+
+
+def local_layout(run_count, workers=None, cores=None):
+    """``(workers, numba_threads)`` of a local cluster: workers x threads <= cores, never oversubscribed.
+
+    By default as many single-threaded workers as there are cores (runs in parallel beat threads
+    within a run for the small meshes sweeps are made of), but no more workers than runs; the
+    cores left over go to each worker's Numba threads.
+    """
+    cores = cores or machine_cores()
+    if workers is None:
+        workers = max(1, min(cores, run_count))
+    return workers, max(1, cores // workers)
+
+
+# ---------------------------------------------------------------------------------------------
+# Worker side
+
+
+def _prepare_with_mesh(scene, mesh):
+    """``simulation.prepare(scene)`` for an already built mesh (the sweep builds each mesh once).
+
+    Mirrors ``prepare`` step for step (``tests/test_sweep.py`` checks they agree); it would
+    become ``prepare(scene, mesh=mesh)`` if ``prepare`` took a mesh.
+    """
+    from ..model import build_model
+    from ..simulation import Prepared, choose_dt, stable_dt_estimate
+    from ..integrators.timestep import dilatational_wave_speed, plan_time
+
+    model = build_model(scene, mesh)
+    material = scene.material
+    wave_speed = dilatational_wave_speed(material.youngs_modulus, material.poissons_ratio, material.density)
+    dt_estimate = stable_dt_estimate(model)
+    dt, safe_dt, substeps = choose_dt(scene, model, dt_estimate)
+    if scene.time.dt in ("auto", "exact"):
+        plan = plan_time(scene.time.duration, scene.output.frame_interval, max_dt=dt)
+    else:
+        plan = plan_time(scene.time.duration, scene.output.frame_interval, dt=dt)
+    return Prepared(scene=scene, model=model, plan=plan, dt_estimate=dt_estimate, safe_dt=safe_dt,
+                    substeps=substeps, wave_speed=wave_speed)
+
+
+def execute_run(scene, mesh, name, target_dir=None, numba_threads=None):
+    """Run one sweep run on a worker; returns a dict (never raises for a failed run).
+
+    scene: the run's validated scene; mesh: its built ``TetMesh``; target_dir: a folder the client
+    also sees (write the file there), or None (write to a local temporary folder and return the
+    bytes of ``<name>.h5`` and ``<name>.xdmf`` under ``files``).  numba_threads: Numba threads
+    for this run, or None to leave the worker's setting.  The dict has ``name``, ``error`` (one
+    line, or None), ``metrics`` (None if no file was written), ``numba_threads``, ``host``.
+    """
+    import numba
+
+    from ..simulation import simulate
+
+    if numba_threads:
+        numba.set_num_threads(max(1, min(int(numba_threads), numba.config.NUMBA_NUM_THREADS)))
+    folder = Path(target_dir) if target_dir is not None else Path(tempfile.mkdtemp(prefix="softsim-sweep-"))
+    path = folder / f"{name}.h5"
+    result = {"name": name, "error": None, "metrics": None, "files": None, "warnings": [],
+              "numba_threads": numba.get_num_threads(), "host": socket.gethostname()}
+    catcher = _ListHandler(result["warnings"])
+    log.addHandler(catcher)
+    try:
+        try:
+            simulate(_prepare_with_mesh(scene, mesh), path)
+        except SoftsimError as exc:
+            result["error"] = str(exc)
+        except Exception as exc:    # a bug must not stop the other runs; the file says failed too
+            result["error"] = (f"{type(exc).__name__}: {exc}".splitlines() or [""])[0]
+        if path.is_file():
+            result["metrics"] = run_metrics(path)
+            if target_dir is None:
+                result["files"] = {p.name: p.read_bytes() for p in (path, xdmf_path_for(path)) if p.is_file()}
+        return result
+    finally:
+        log.removeHandler(catcher)
+        if target_dir is None:
+            shutil.rmtree(folder, ignore_errors=True)
+
+
+class _ListHandler(logging.Handler):
+    """Collects the messages softsim logs during a run on a worker; the client logs them with the run's name."""
+
+    def __init__(self, messages):
+        super().__init__(logging.WARNING)
+        self.messages = messages
+
+    def emit(self, record):
+        self.messages.append(record.getMessage())
+
+
+# ---------------------------------------------------------------------------------------------
+# Client side
+
+
+@dataclass
+class SweepResult:
+    """Rows of the summary (one per run, in run order) and where the summary was written."""
+
+    rows: list
+    summary_paths: list
+    skipped: int = 0
+    cancelled: bool = False
+    counts: dict = field(default_factory=dict)
+
+    @property
+    def failed(self):
+        return [row for row in self.rows if row["status"] != "complete"]
+
+
+def plan_runs(runs, force=False):
+    """``(to_run, to_skip)``: runs whose file is complete with the same scene are skipped unless ``force``.
+
+    A file that is not complete (failed, interrupted, left running by a killed sweep) is
+    replaced.  A complete file written for a different scene is not replaced without ``force``:
+    ``SimulationError`` naming the run and the first differing key, before anything runs.
+    """
+    import yaml
+
+    to_run, to_skip = [], []
+    for run in runs:
+        path = run.path
+        if force or not path.exists():
+            to_run.append(run)
+            continue
+        if path.is_dir():
+            raise SimulationError(f"run {run.index + 1} ({run.name}): {path} is a directory")
+        status = stored_status(path)
+        stored = stored_config(path)
+        if status is None or stored is None:
+            raise SimulationError(f"run {run.index + 1} ({run.name}): {path} exists and is not a softsim run "
+                                  f"file; pass --force to replace it or choose another output folder")
+        if status != "complete":
+            to_run.append(run)
+            continue
+        current = yaml.safe_load(scene_to_yaml(run.scene))
+        current.get("output", {}).pop("path", None)
+        if stored != current:
+            raise SimulationError(
+                f"run {run.index + 1} ({run.name}): {path} is complete but was written for another scene "
+                f"({_first_difference(stored, current)}); pass --force to rerun it or choose another output folder")
+        to_skip.append(run)
+    return to_run, to_skip
+
+
+def _first_difference(a, b, prefix=""):
+    """Dotted key of the first difference between two nested mappings, with both values."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        for key in sorted(set(a) | set(b)):
+            if a.get(key) != b.get(key):
+                return _first_difference(a.get(key), b.get(key), f"{prefix}{key}.")
+    return f"{prefix.rstrip('.')}: {a!r} -> {b!r}"
+
+
+def summary_row(run, metrics=None, error=None):
+    """One summary row: run number, name, file, each swept key's value, then ``METRIC_COLUMNS``."""
+    row = {"run": run.index + 1, "name": run.name, "file": run.path.name}
+    for key, value in run.parameters.items():
+        row[key] = value if isinstance(value, (int, float, str, bool)) else str(value)
+    if metrics is None:
+        metrics = {column: math.nan for column in METRIC_COLUMNS}
+        metrics.update(status="failed", status_reason=error or "no output file was written")
+    elif error and metrics["status"] == "running":     # a crash the file could not record
+        metrics = dict(metrics, status="failed", status_reason=error)
+    row.update(metrics)
+    return row
+
+
+def write_summary(rows, output_dir):
+    """Write ``summary.csv`` (and ``summary.parquet`` if pyarrow is importable); returns their paths."""
+    import csv
+
+    output_dir = Path(output_dir)
+    columns = list(dict.fromkeys(column for row in rows for column in row))
+    csv_path = output_dir / f"{SUMMARY_NAME}.csv"
+    part = csv_path.with_name(f".{csv_path.name}.part")
+    with open(part, "w", newline="") as stream:
+        writer = csv.DictWriter(stream, fieldnames=columns, restval="")
+        writer.writeheader()
+        for row in rows:
+            writer.writerow({key: _csv_value(value) for key, value in row.items()})
+    os.replace(part, csv_path)
+    paths = [csv_path]
+    try:
+        import pyarrow
+        import pyarrow.parquet
+    except ImportError:
+        return paths
+    table = pyarrow.Table.from_pylist([{column: row.get(column) for column in columns} for row in rows])
+    parquet_path = output_dir / f"{SUMMARY_NAME}.parquet"
+    pyarrow.parquet.write_table(table, parquet_path)
+    paths.append(parquet_path)
+    return paths
+
+
+def _csv_value(value):
+    if isinstance(value, float):
+        return "" if math.isnan(value) else repr(value)
+    return value
+
+
+def _write_files(files, output_dir):
+    """Write the bytes a worker sent back; each file appears whole (written aside, then renamed)."""
+    for name, data in files.items():
+        target = Path(output_dir) / name
+        part = target.with_name(f".{name}.part")
+        part.write_bytes(data)
+        os.replace(part, target)
+
+
+def build_meshes(runs):
+    """Each distinct ``mesh`` section's ``TetMesh``, built once: ``{mesh key: mesh}``, and each run's key.
+
+    A mesh that cannot be built is a ``SoftsimError`` naming the first run that uses it.
+    """
+    from ..mesh import build_mesh
+
+    meshes, keys = {}, {}
+    for run in runs:
+        key = run.scene.mesh.model_dump_json()
+        keys[run.index] = key
+        if key not in meshes:
+            try:
+                meshes[key] = build_mesh(run.scene.mesh)
+            except SoftsimError as exc:
+                raise type(exc)(f"run {run.index + 1} ({run.name}): {exc}") from None
+    return meshes, keys
+
+
+@contextlib.contextmanager
+def _sigint_ignored_in_children():
+    """While inside, SIGINT is ignored, so worker processes started now ignore Ctrl-C.
+
+    Ctrl-C on a terminal goes to every process of the foreground group; the client alone
+    should handle it (cancel, then stop the workers).  An ignored signal stays ignored in a
+    child, and Python leaves it so.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+@contextlib.contextmanager
+def local_client(workers, numba_threads):
+    """A ``distributed.Client`` on a new local cluster of ``workers`` single-threaded process workers.
+
+    Each worker gets ``NUMBA_NUM_THREADS=numba_threads`` in its environment before it starts (the
+    nanny's pre-spawn environment: numba reads it when first imported, which may be while the
+    worker process imports its parent's main module, before the nanny's ``env`` is applied).
+    One Dask thread per worker: Numba's ``workqueue`` threading layer aborts when two threads of
+    one process run parallel code at once.
+    """
+    distributed = import_distributed()
+    import dask
+
+    threads = str(int(numba_threads))
+    saved = os.environ.get("NUMBA_NUM_THREADS")
+    os.environ["NUMBA_NUM_THREADS"] = threads     # pre-spawn values are read from os.environ first
+    try:
+        with dask.config.set({"distributed.nanny.pre-spawn-environ.NUMBA_NUM_THREADS": threads}), \
+                _sigint_ignored_in_children():
+            cluster = distributed.LocalCluster(
+                n_workers=workers, threads_per_worker=1, processes=True, silence_logs=logging.CRITICAL,
+                env={"NUMBA_NUM_THREADS": threads},
+                # No dashboard; the scheduler's small HTTP server on a free port, not 8787.
+                dashboard_address=":0", scheduler_kwargs={"dashboard": False})
+    finally:
+        if saved is None:
+            os.environ.pop("NUMBA_NUM_THREADS", None)
+        else:
+            os.environ["NUMBA_NUM_THREADS"] = saved
+    try:
+        with distributed.Client(cluster) as client:
+            yield client
+    finally:
+        cluster.close()
+
+
+@contextlib.contextmanager
+def remote_client(address):
+    """A ``distributed.Client`` connected to the scheduler at ``address`` (``tcp://host:port``)."""
+    distributed = import_distributed()
+    try:
+        client = distributed.Client(address, timeout="10s")
+    except (OSError, TimeoutError) as exc:
+        raise SimulationError(f"--scheduler {address}: cannot connect ({exc})") from None
+    with client:
+        yield client
+
+
+def run_sweep(runs, output_dir, client, shared_dir=False, force=False, numba_threads=None,
+              progress: Optional[Callable] = None):
+    """Run ``runs`` (from ``spec.expand_sweep``) on ``client``; returns a ``SweepResult``.
+
+    client: a ``distributed.Client`` (None will do when every run is already complete).
+    output_dir: where run files and the summary go (it must exist).  shared_dir: the workers see
+    ``output_dir`` at the same path and write there directly; otherwise each result's bytes come
+    back through Dask.  force: rerun runs whose file is complete.  numba_threads: Numba threads
+    per run (None: the workers' own setting).  progress: called as ``progress(done, failed,
+    running, total)`` after each run finishes (``done`` counts skipped runs).
+
+    Runs whose file is complete with the same scene are skipped; every other run is (re)run, and
+    one that fails (the blow-up guard, a ``SoftsimError``, a bug, a lost worker) does not stop the
+    others.  On ``KeyboardInterrupt`` the remaining runs are cancelled, the summary of what
+    finished is written, and the interrupt goes on.
+    """
+    output_dir = Path(output_dir).absolute()
+    to_run, to_skip = plan_runs(runs, force)
+    meshes, mesh_keys = build_meshes(to_run)
+    rows = {run.index: summary_row(run, run_metrics(run.path)) for run in to_skip}
+    total = len(runs)
+    done = len(rows)
+    failed = sum(row["status"] != "complete" for row in rows.values())
+    slots = max(1, sum(client.nthreads().values())) if to_run else 1
+    futures = {}
+    result = SweepResult(rows=[], summary_paths=[], skipped=len(to_skip))
+    if progress is not None:
+        progress(done, failed, min(slots, len(to_run)), total)
+    try:
+        distributed = import_distributed() if to_run else None
+        mesh_futures = {key: client.scatter(mesh, hash=False) for key, mesh in meshes.items()}
+        target = str(output_dir) if shared_dir else None
+        for run in to_run:
+            future = client.submit(execute_run, run.scene, mesh_futures[mesh_keys[run.index]], run.name,
+                                   target, numba_threads, key=f"softsim-run-{run.index}-{os.urandom(4).hex()}",
+                                   pure=False, retries=0)
+            futures[future] = run
+        for future in distributed.as_completed(list(futures)) if futures else ():
+            run = futures[future]
+            try:
+                outcome = future.result()
+                error = outcome["error"]
+                for message in outcome["warnings"]:
+                    log.warning("run %d (%s): %s", run.index + 1, run.name, message)
+                if outcome["files"]:
+                    _write_files(outcome["files"], output_dir)
+                metrics = outcome["metrics"]
+            except Exception as exc:    # the worker died (KilledWorker) or the result could not come back
+                error, metrics = (f"{type(exc).__name__}: {exc}".splitlines() or [""])[0], None
+            if metrics is None and run.path.is_file():
+                run.path.unlink()       # an older file of this run would contradict the summary
+            row = rows[run.index] = summary_row(run, metrics, error)
+            done += 1
+            failed += row["status"] != "complete"
+            if progress is not None:
+                progress(done, failed, min(slots, total - done), total)
+    except KeyboardInterrupt:
+        result.cancelled = True
+        client.cancel(list(futures), force=True)
+        raise
+    finally:
+        for run in runs:
+            if run.index not in rows:
+                rows[run.index] = summary_row(run, None, "the sweep was cancelled before this run finished")
+                rows[run.index]["status"] = NOT_FINISHED
+        result.rows = [rows[index] for index in sorted(rows)]
+        result.summary_paths = write_summary(result.rows, output_dir)
+        result.counts = {status: sum(row["status"] == status for row in result.rows)
+                         for status in ("complete", "failed", "interrupted", "running")}
+    return result

@@ -1,0 +1,283 @@
+"""``softsim sweep``: the sweep file's checks, run names, and real sweeps on a local Dask cluster.
+
+One cluster of two single-threaded process workers serves the whole module; the sweeps run a
+120-tet bar for a few dozen steps, so the file takes well under a minute on a quiet 2-core machine.
+"""
+
+import csv
+import os
+import sys
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+import yaml
+from click.testing import CliRunner
+
+from softsim.cli.main import cli
+from softsim.config import parse_scene
+from softsim.errors import ConfigError, MissingDependencyError, SimulationError
+from softsim.mesh import build_mesh
+from softsim.simulation import prepare
+from softsim.sweep import expand_sweep, load_sweep, parse_sweep, plot_summary, run_sweep, tip_vertices
+from softsim.sweep.runner import _prepare_with_mesh, build_meshes, import_distributed, local_client, plan_runs
+from softsim.sweep.spec import format_value, run_name
+
+pytest.importorskip("distributed")
+
+# A 0.3 x 0.1 x 0.1 m bar clamped at x = 0: 120 tets, 63 vertices; 50 steps of 1e-4 s, 6 frames.
+BAR = {
+    "mesh": {"shape": "box", "size": [0.3, 0.1, 0.1], "origin": [0.0, -0.05, -0.05],
+             "element_size": 0.05, "structured": True},
+    "material": {"model": "stvk", "youngs_modulus": 1.0e6, "poissons_ratio": 0.3, "density": 1000.0},
+    "fixed": [{"min": [-1.0e-6, -1, -1], "max": [1.0e-6, 1, 1]}],
+    "time": {"duration": 0.005, "dt": 1.0e-4, "dt_policy": "allow"},
+    "output": {"frame_interval": 0.001},
+}
+# 2 x 2: at E = 1e7 Pa the stable step is about 1.6e-4 s, so dt = 4e-4 s (dt_policy: allow) blows up
+# and the guard stops that run; the other three finish.
+SWEEP = {"base": "bar.yaml",
+         "parameters": {"material.youngs_modulus": [1.0e6, 1.0e7], "time.dt": [1.0e-4, 4.0e-4]}}
+NAMES = ["youngs_modulus=1e+06__dt=0.0001", "youngs_modulus=1e+06__dt=0.0004",
+         "youngs_modulus=1e+07__dt=0.0001", "youngs_modulus=1e+07__dt=0.0004"]
+FAILING = "youngs_modulus=1e+07__dt=0.0004"
+
+
+@pytest.fixture(scope="module")
+def client():
+    """A local cluster of 2 process workers, 1 Dask thread and 1 Numba thread each, for the module."""
+    with local_client(workers=2, numba_threads=1) as dask_client:
+        yield dask_client
+
+
+def write_sweep(folder, sweep=SWEEP, base=BAR):
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "bar.yaml").write_text(yaml.safe_dump(base))
+    path = folder / "sweep.yaml"
+    path.write_text(yaml.safe_dump(sweep, sort_keys=False))
+    return path
+
+
+def read_csv(path):
+    with open(path, newline="") as stream:
+        return list(csv.DictReader(stream))
+
+
+def mtimes(folder):
+    return {path.name: path.stat().st_mtime_ns for path in Path(folder).glob("*.h5")}
+
+
+# ---------------------------------------------------------------------------------------------
+# The sweep file
+
+
+@pytest.mark.parametrize("sweep, message", [
+    ({"base": "bar.yaml", "parameters": {"material.youngs": [1e6]}},
+     "parameters.material.youngs: is not a scene key; did you mean 'material.youngs_modulus'?"),
+    ({"base": "bar.yaml", "parametrs": {"material.density": [1e3]}},
+     "parametrs: unknown section; did you mean 'parameters'?"),
+    ({"base": "bar.yaml", "parameters": {"material.poissons_ratio": {"start": 0.2, "stop": 0.4}}},
+     "parameters.material.poissons_ratio: num: required key missing"),
+    ({"base": "bar.yaml", "parameters": {"material.density": {"start": 0, "stop": 10, "num": 3, "log": True}}},
+     "start = 0.0: must be greater than 0 with log: true"),
+    ({"base": "bar.yaml", "parameters": {"material.density": []}},
+     "parameters.material.density = []: must be a non-empty list"),
+    ({"base": "bar.yaml", "parameters": {"material.density": [1e3, 1e3]}}, "listed twice"),
+    ({"base": "bar.yaml", "zip": {"mesh.element_size": [0.05, 0.1], "time.dt": [1e-4]}},
+     "zip.time.dt: has 1 values but mesh.element_size has 2"),
+    ({"base": "bar.yaml", "parameters": {"material": [{}]}, "zip": {"material.density": [1e3]}},
+     "material.density: overlaps material"),
+    ({"base": "bar.yaml", "parameters": {"output.path": ["a.h5"]}}, "output.path: is set by the sweep"),
+    ({"base": "bar.yaml"}, "parameters: required: at least one scene key to vary"),
+    ({"base": "missing.yaml", "parameters": {"material.density": [1e3]}}, "base scene file not found"),
+    # An invalid combination: named by its run and the scene key.
+    ({"base": "bar.yaml", "parameters": {"material.poissons_ratio": [0.3, 0.6]}},
+     "run 2 of 2 (poissons_ratio=0.6): material.poissons_ratio = 0.6: must be greater than -1 and less than 0.5"),
+])
+def test_bad_sweep_files_get_one_line(tmp_path, sweep, message):
+    path = write_sweep(tmp_path, sweep)
+    with pytest.raises(ConfigError) as error:
+        expand_sweep(load_sweep(path), tmp_path / "out")
+    assert message in str(error.value)
+    assert "\n" not in str(error.value)
+
+
+def test_bad_sweep_file_via_cli(tmp_path):
+    path = write_sweep(tmp_path, {"base": "bar.yaml", "parameters": {"material.modulus": [1e6, 2e6]}})
+    result = CliRunner().invoke(cli, ["sweep", str(path), "-o", str(tmp_path / "out")])
+    assert result.exit_code == 1
+    assert result.output.strip().count("\n") == 0
+    assert "parameters.material.modulus: is not a scene key" in result.output
+    assert not (tmp_path / "out").exists()
+
+
+def test_combinations_are_revalidated_copies(tmp_path):
+    path = write_sweep(tmp_path, {"base": "bar.yaml",
+                                  "parameters": {"material.youngs_modulus": {"start": 1e6, "stop": 1e8, "num": 3,
+                                                                              "log": True},
+                                                 "material.model": ["stvk", "neohookean"]},
+                                  "zip": {"mesh.element_size": [0.05, 0.1], "time.dt": [1e-4, 2e-4]}})
+    sweep = load_sweep(path)
+    base = yaml.safe_load(yaml.safe_dump(sweep.base))
+    runs = expand_sweep(sweep, tmp_path / "out")
+    assert len(runs) == 3 * 2 * 2
+    assert sweep.base == base                       # never mutated
+    assert [run.scene.material.youngs_modulus for run in runs[::4]] == [1e6, 1e7, 1e8]
+    assert {(run.scene.mesh.element_size, run.scene.time.dt) for run in runs} == {(0.05, 1e-4), (0.1, 2e-4)}
+    assert runs[3].name == "youngs_modulus=1e+06__model=neohookean__element_size=0.1__dt=0.0002"
+    assert runs[3].path == (tmp_path / "out" / f"{runs[3].name}.h5").absolute()
+    assert str(runs[3].path) == runs[3].scene.output.path
+    meshes, keys = build_meshes(runs)
+    assert len(meshes) == 2                         # one mesh per distinct mesh section
+
+
+def test_run_names_are_stable_and_safe():
+    assert [format_value(v) for v in (1e8, 0.3, 5e-6, 0.25, 2, True, "stvk", [0, 0, -9.81])] == \
+        ["1e+08", "0.3", "5e-06", "0.25", "2", "true", "stvk", "0,0,-9.81"]
+    labels = {"a.b": "b", "c": "c"}
+    assert run_name({"a.b": 1e-4, "c": "x/y z"}, labels) == "b=0.0001__c=x_y_z"
+    long = run_name({"a.b": "x" * 500, "c": 1}, labels)
+    assert len(long) <= 200 and long == run_name({"a.b": "x" * 500, "c": 1}, labels)
+
+
+def test_dry_run_lists_runs_and_names(tmp_path):
+    path = write_sweep(tmp_path)
+    result = CliRunner().invoke(cli, ["sweep", str(path), "-o", str(tmp_path / "out"), "--dry-run"])
+    assert result.exit_code == 0, result.output
+    for name in NAMES:
+        assert f"{name}.h5  run" in result.output
+    assert "4 runs, 4 to run" in result.output
+    assert not (tmp_path / "out").exists()
+
+
+def test_prepare_with_a_shared_mesh_matches_prepare(tmp_path):
+    scene = parse_scene(dict(BAR, time={"duration": 0.006, "dt": 1.2e-3}), tmp_path)
+    mine, reference = _prepare_with_mesh(scene, build_mesh(scene.mesh)), prepare(scene)
+    assert mine.plan == reference.plan and mine.substeps == reference.substeps > 1
+    assert (mine.dt_estimate, mine.safe_dt, mine.wave_speed) == \
+        (reference.dt_estimate, reference.safe_dt, reference.wave_speed)
+
+
+def test_tip_is_the_far_end_face():
+    points = np.array([[x, y, z] for x in (0.0, 0.5, 1.0) for y in (0.0, 0.1) for z in (0.0, 0.1)])
+    fixed = points[:, 0] == 0.0
+    assert sorted(tip_vertices(points, fixed)) == list(np.flatnonzero(points[:, 0] == 1.0))
+    assert tip_vertices(points, np.zeros(len(points), bool)).size == 0
+
+
+def test_without_dask_the_error_names_the_extra(monkeypatch):
+    monkeypatch.setitem(sys.modules, "distributed", None)
+    with pytest.raises(MissingDependencyError, match=r"pip install 'softsim\[sweep\]'"):
+        import_distributed()
+
+
+# ---------------------------------------------------------------------------------------------
+# Sweeps on the cluster
+
+
+def test_workers_do_not_oversubscribe(client):
+    assert set(client.nthreads().values()) == {1}
+    threads = client.run(lambda: (os.environ.get("NUMBA_NUM_THREADS"), __import__("numba").config.NUMBA_NUM_THREADS))
+    assert set(threads.values()) == {("1", 1)}
+
+
+def test_sweep_reports_a_failed_run_reruns_skip_and_force(tmp_path, client):
+    runs = expand_sweep(load_sweep(write_sweep(tmp_path)), tmp_path / "out")
+    out = tmp_path / "out"
+    out.mkdir()
+    result = run_sweep(runs, out, client)
+    assert [row["name"] for row in result.rows] == NAMES
+    rows = {row["name"]: row for row in read_csv(out / "summary.csv")}
+    assert list(rows) == NAMES
+    for name, row in rows.items():
+        with h5py.File(out / f"{name}.h5") as f:        # the summary says what the file says
+            assert (row["status"], row["status_reason"]) == (f.attrs["status"], f.attrs["status_reason"])
+        assert (out / f"{name}.xdmf").is_file()
+        assert row["material.youngs_modulus"] and row["time.dt"] and float(row["wall_time_s"]) > 0
+    assert rows[FAILING]["status"] == "failed" and "blew up" in rows[FAILING]["status_reason"]
+    for name in set(NAMES) - {FAILING}:
+        row = rows[name]
+        assert row["status"] == "complete" and int(row["steps_done"]) == int(row["steps"]) > 0
+        assert float(row["tip_dz"]) < 0 and abs(float(row["tip_x"]) - 0.3) < 0.01   # sags; tip at x = 0.3 m
+        assert float(row["max_displacement"]) >= float(row["tip_displacement"]) > 0
+        assert float(row["final_kinetic_energy"]) > 0 and float(row["tet_steps_per_s"]) > 0
+
+    before = mtimes(out)
+    again = run_sweep(runs, out, client)                 # complete runs are skipped, the failed one retried
+    assert again.skipped == 3
+    after = mtimes(out)
+    assert {name for name in before if before[name] != after[name]} == {f"{FAILING}.h5"}
+    assert [row["status"] for row in again.rows] == [row["status"] for row in result.rows]
+
+    forced = run_sweep(runs, out, client, force=True)
+    assert forced.skipped == 0
+    assert all(mtimes(out)[name] != after[name] for name in after)
+
+
+def test_a_complete_file_of_another_scene_is_not_replaced(tmp_path, client):
+    sweep = {"base": "bar.yaml", "parameters": {"material.youngs_modulus": [1.0e6]}}
+    out = tmp_path / "out"
+    out.mkdir()
+    run_sweep(expand_sweep(load_sweep(write_sweep(tmp_path, sweep)), out), out, client)
+    changed = dict(BAR, material=dict(BAR["material"], density=1100.0))
+    runs = expand_sweep(load_sweep(write_sweep(tmp_path, sweep, changed)), out)
+    with pytest.raises(SimulationError, match=r"material.density: 1000.0 -> 1100.0\); pass --force"):
+        plan_runs(runs)
+    assert len(plan_runs(runs, force=True)[0]) == 1
+
+
+def test_ctrl_c_cancels_and_keeps_the_summary(tmp_path, client):
+    sweep = {"base": "bar.yaml", "parameters": {"material.youngs_modulus": [1e6, 2e6, 3e6, 4e6, 5e6, 6e6]}}
+    out = tmp_path / "out"
+    out.mkdir()
+    runs = expand_sweep(load_sweep(write_sweep(tmp_path, sweep)), out)
+
+    def interrupt(done, failed, running, total):
+        if done >= 1:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_sweep(runs, out, client, progress=interrupt)
+    statuses = [row["status"] for row in read_csv(out / "summary.csv")]
+    assert statuses.count("complete") >= 1 and statuses.count("interrupted") >= 1
+    assert set(statuses) <= {"complete", "interrupted"}
+    rerun = run_sweep(runs, out, client)                 # the cluster is still usable; the rest finishes
+    assert rerun.skipped == statuses.count("complete") and not rerun.failed
+
+
+def test_cli_on_an_existing_scheduler_with_a_shared_dir(tmp_path, client):
+    sweep = {"base": "bar.yaml", "parameters": {"material.youngs_modulus": [1.0e6, 2.0e6]}}
+    path = write_sweep(tmp_path, sweep)
+    out = tmp_path / "shared"
+    args = ["sweep", str(path), "--scheduler", client.scheduler.address, "--shared-dir", str(out),
+            "--plot", "youngs_modulus:tip_displacement"]
+    result = CliRunner().invoke(cli, args)
+    assert result.exit_code == 0, result.output
+    assert "2 runs, 2 complete (0 skipped, already complete), 0 failed" in result.output
+    assert (out / "youngs_modulus=2e+06.h5").is_file() and (out / "summary.png").stat().st_size > 0
+    result = CliRunner().invoke(cli, args[:-2])
+    assert "2 runs, 2 complete (2 skipped, already complete)" in result.output
+
+
+def test_cli_local_cluster_exit_code_on_a_failed_run(tmp_path):
+    sweep = {"base": "bar.yaml", "parameters": {"time.dt": [1.0e-4, 1.0e-2]},
+             "zip": {"material.youngs_modulus": [1.0e7]}}
+    path = write_sweep(tmp_path, sweep)
+    result = CliRunner().invoke(cli, ["sweep", str(path), "-o", str(tmp_path / "out"), "--workers", "1"])
+    assert result.exit_code == 1
+    assert "2 runs, 1 complete (0 skipped, already complete), 1 failed" in result.output
+    assert "run 2 (dt=0.01__youngs_modulus=1e+07) failed: the simulation blew up" in result.output
+
+
+def test_plot_summary(tmp_path):
+    summary = tmp_path / "summary.csv"
+    summary.write_text("run,material.youngs_modulus,material.poissons_ratio,status,tip_displacement\n"
+                       "1,1e6,0.2,complete,0.01\n2,1e7,0.2,complete,0.001\n"
+                       "3,1e6,0.4,complete,0.009\n4,1e7,0.4,failed,\n")
+    image = plot_summary(summary, tmp_path / "plot.png", "material.youngs_modulus", "tip_displacement",
+                         "material.poissons_ratio")
+    assert image.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    with pytest.raises(ConfigError, match="plot column 'tip'"):
+        plot_summary(summary, tmp_path / "plot.png", "material.youngs_modulus", "tip")
