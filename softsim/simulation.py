@@ -21,6 +21,7 @@ from .integrators.stability import exact_stable_step, nodal_frequency_bound
 from .integrators.timestep import AUTO_SAFETY, dilatational_wave_speed, plan_time
 from .io.hdf5 import RunWriter, check_writable
 from .kernels.energy import elastic_energy, gravity_energy, kinetic_energy
+from .kernels.fields import tet_fields
 from .mesh import build_mesh
 from .model import State, build_model, initial_state
 
@@ -132,6 +133,22 @@ def frame_energy(model, state):
     }
 
 
+def frame_fields(model, state, fields):
+    """``{name: array}`` of the array fields in ``fields`` other than ``velocities`` (see
+    ``io.fields.FIELDS``) for ``state``: vertex fields in the user's vertex order, tet fields in
+    the user's tet order.  Empty, and no kernel runs, when ``fields`` asks for none of them."""
+    out = tet_fields(state.x, model.tets, model.Dm_inv, model.material_id, model.lam, model.mu, fields)
+    for name, values in out.items():
+        user = np.empty_like(values)
+        user[model.tet_order] = values
+        out[name] = user
+    if "displacement" in fields:
+        out["displacement"] = model.to_user_order(state.x - model.rest_points)
+    if "speed" in fields:
+        out["speed"] = model.to_user_order(np.sqrt(np.einsum("ij,ij->i", state.v, state.v)))
+    return out
+
+
 def step(model, state, dt, step_count, damping, corner_forces):
     """Advance ``state`` in place by ``step_count`` symplectic-Euler steps of ``dt`` [s]."""
     advance(state.x, state.v, state.step, step_count, dt,
@@ -178,7 +195,8 @@ def simulate(prepared, output_path, progress=None, should_stop=None, resume=Fals
     def write_frame(writer):
         energy = frame_energy(model, state) if "energy" in fields else None
         writer.append_frame(state.step * plan.dt, state.step, model.to_user_order(state.x),
-                            model.to_user_order(state.v), energy, guard.snapshot())
+                            model.to_user_order(state.v), energy, guard.snapshot(),
+                            frame_fields(model, state, fields))
 
     started = _time.perf_counter()
     if resume:

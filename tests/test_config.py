@@ -175,7 +175,7 @@ def test_frozen():
         ("ground.stiffness=0", "ground.stiffness = 0: must be greater than 0"),
         ("ground.friction=-0.1", "ground.friction = -0.1: must be at least 0"),
         ("output.fields=[energy, energy]", "output.fields = ['energy', 'energy']: must be"),
-        ("output.fields=[stress]", "output.fields = ['stress']: must be a list of distinct items"),
+        ("output.fields=[tension]", "output.fields = ['tension']: must be a list of distinct items"),
         ("output.frame_interval=0", "output.frame_interval = 0: must be greater than 0"),
         ("output.path=", "output.path = null: must be a non-empty file path string"),
         ("time=", "time = null: must be a mapping with keys duration, dt"),

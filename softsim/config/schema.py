@@ -33,7 +33,9 @@ AXES = ("x", "y", "z")
 DT_CHOICES = ("auto", "exact")
 DT_POLICIES = ("substep", "refuse", "allow")
 PRECISIONS = ("float64",)
-OUTPUT_FIELDS = ("velocities", "energy")
+# The optional per-frame fields (softsim/io/fields.py says where each lives, its shape and unit).
+OUTPUT_FIELDS = ("velocities", "energy", "displacement", "speed", "strain", "stress", "pressure",
+                 "deviatoric_stress", "von_mises", "J")
 
 
 def fail(message: str, key: Optional[str] = None, value: Any = None, show_value: bool = True):
@@ -409,7 +411,8 @@ class Output(Section):
     )
     frame_interval: Positive = Field(0.01, description="simulated time between frames [s] > 0")
     fields: FieldList = Field(
-        (), description="extra per-frame data: distinct items of velocities | energy"
+        (), description="extra per-frame data: distinct items of velocities | energy | displacement | "
+        "speed | strain | stress | pressure | deviatoric_stress | von_mises | J"
     )
 
 

@@ -4,7 +4,8 @@ Layout (a public interface):
 
 - ``mesh/points`` (n, 3) rest positions [m], ``mesh/tets`` (m, 4), ``mesh/fixed`` (n,) bool
 - ``frames/time`` (k,) [s], ``frames/points`` (k, n, 3) [m]; optional ``frames/velocities``
-  (k, n, 3) [m/s]; ``frames/energy/{kinetic,elastic,gravity}`` (k,) [J]
+  (k, n, 3) [m/s]; ``frames/energy/{kinetic,elastic,gravity}`` (k,) [J]; the other optional
+  fields of ``io.fields.FIELDS`` as ``frames/<name>``, (k, n, ...) per vertex or (k, m, ...) per tet
 - ``state/``: ``positions``, ``velocities``, ``time``, ``step`` of the last complete frame
 - root attributes: ``config``, ``dt``, ``steps``, ``wall_time_s``, ``softsim_version``,
   ``status`` (running | complete | interrupted | failed), ``status_reason``
@@ -23,10 +24,14 @@ import numpy as np
 
 from .. import __version__
 from ..errors import SimulationError, SoftsimError
+from .fields import FIELDS
 from .xdmf import write_xdmf
 
 ENERGY_TERMS = ("kinetic", "elastic", "gravity")
 STATUSES = ("running", "complete", "interrupted", "failed")
+# Fields stored as frames/<name>, one array row per frame, passed to append_frame(fields=...).
+_ARRAY_FIELDS = tuple(name for name, spec in FIELDS.items()
+                      if spec.location in ("vertex", "tet") and name != "velocities")
 # The XDMF is rewritten at most this often [s of wall time] while running, and always at the end.
 XDMF_REWRITE_INTERVAL_S = 1.0
 
@@ -57,7 +62,7 @@ class RunWriter:
     """Context manager writing one run: ``append_frame`` per frame, ``finish`` with the status.
 
     points (n, 3) [m], tets (m, 4), fixed (n,) bool: the mesh in the user's order.
-    fields: the optional per-frame fields asked for (``velocities``, ``energy``).
+    fields: the optional per-frame fields asked for (names of ``io.fields.FIELDS``).
     """
 
     def __init__(self, path, points, tets, fixed, config_yaml, dt, steps, fields=(), xdmf=True):
@@ -90,6 +95,12 @@ class RunWriter:
             energy = frames.create_group("energy")
             for term in ENERGY_TERMS:
                 energy.create_dataset(term, shape=(0,), maxshape=(None,), dtype=np.float64, chunks=(1024,))
+        for name in self.fields:
+            if name in _ARRAY_FIELDS:
+                spec = FIELDS[name]
+                row = (n if spec.location == "vertex" else self.tet_count, *spec.shape)
+                frames.create_dataset(name, shape=(0, *row), maxshape=(None, *row), dtype=np.float64,
+                                      chunks=(1, *row))
         state = f.create_group("state")
         state.create_dataset("positions", shape=(n, 3), dtype=np.float64)
         state.create_dataset("velocities", shape=(n, 3), dtype=np.float64)
@@ -131,12 +142,13 @@ class RunWriter:
     def frame_count(self):
         return self.file["frames/time"].shape[0]
 
-    def append_frame(self, time, step, points, velocities, energy=None, resume_state=None):
+    def append_frame(self, time, step, points, velocities, energy=None, resume_state=None, fields=None):
         """Append one frame and the resume state, then flush.
 
         points, velocities: (n, 3) [m], [m/s] in the user's order; energy: dict of ENERGY_TERMS [J];
         resume_state: optional dict of further arrays (stored as ``state/`` datasets) and numbers
-        (``state/`` attributes) a resume needs.
+        (``state/`` attributes) a resume needs; fields: ``{name: array}`` of the other fields asked
+        for (``frames/<name>``), vertex fields in the user's vertex order, tet fields in ``mesh/tets`` order.
         ``frames/time`` grows last of the frame datasets, so its length counts only frames whose data
         is in place; ``state/`` is written after it.
         """
@@ -148,6 +160,8 @@ class RunWriter:
         if "energy" in self.fields:
             for term in ENERGY_TERMS:
                 _append(frames["energy"][term], k, energy[term])
+        for name, value in (fields or {}).items():
+            _append(frames[name], k, value)
         _append(frames["time"], k, time)
         # The resume state follows only a complete frame (never ahead of frames/time).
         state = self.file["state"]
@@ -172,8 +186,14 @@ class RunWriter:
         if not self.xdmf:
             return
         point_fields = [("velocity", "frames/velocities")] if "velocities" in self.fields else []
+        cell_fields = []
+        for name in self.fields:
+            spec = FIELDS[name]
+            if name in _ARRAY_FIELDS:
+                target = point_fields if spec.location == "vertex" else cell_fields
+                target.append((spec.xdmf_name, f"frames/{name}", spec.shape))
         write_xdmf(xdmf_path_for(self.path), self.path, self.node_count, self.tet_count,
-                   self.file["frames/time"][:], point_fields=point_fields)
+                   self.file["frames/time"][:], point_fields=point_fields, cell_fields=cell_fields)
 
     def finish(self, status, reason=""):
         """Record the final ``status`` and ``reason``, rewrite the XDMF, close the file."""

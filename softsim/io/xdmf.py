@@ -40,7 +40,8 @@ def write_xdmf(
         times: frame times [s], length k; frame ``i`` is labelled ``times[i]``.  Only these k
             frames are described, even if the HDF5 datasets already hold more rows.
         point_fields: ``(attribute_name, dataset_path)`` pairs for per-vertex vectors stored as
-            (k, n, 3) float64, e.g. ``("velocity", "frames/velocities")``.
+            (k, n, 3) float64, e.g. ``("velocity", "frames/velocities")``, or
+            ``(attribute_name, dataset_path, component_shape)`` triples as for ``cell_fields``.
         cell_fields: ``(attribute_name, dataset_path, component_shape)`` triples for per-tet
             data stored as (k, m, *component_shape) float64; component_shape is ``()`` (Scalar),
             ``(3,)`` (Vector) or ``(3, 3)`` (Tensor).
@@ -98,8 +99,11 @@ def write_xdmf(
             frame_slab("        ", "frames/points", (n, 3), i),
             "      </Geometry>\n",
         ]
-        for name, dataset in point_fields:
-            parts.append(attribute(name, "Node", "Vector", dataset, (n, 3), i))
+        for name, dataset, *shape in point_fields:
+            shape = tuple(shape[0]) if shape else (3,)
+            if shape not in _ATTRIBUTE_TYPES:
+                raise ValueError(f"point field {name!r}: unsupported component shape {shape}")
+            parts.append(attribute(name, "Node", _ATTRIBUTE_TYPES[shape], dataset, (n, *shape), i))
         for name, dataset, shape in cell_fields:
             shape = tuple(shape)
             if shape not in _ATTRIBUTE_TYPES:
