@@ -8,7 +8,11 @@ import click
 from softsim import __version__
 from softsim.errors import SoftsimError
 
+from . import export as export_command
+from . import info as info_command
 from . import mesh as mesh_command
+from . import plot as plot_command
+from . import render as render_command
 from . import run as run_command
 from . import stability as stability_command
 from . import sweep as sweep_command
@@ -68,6 +72,10 @@ def cli(ctx, verbose, quiet):
 cli.add_command(run_command.run)
 cli.add_command(mesh_command.mesh)
 cli.add_command(stability_command.stability)
+cli.add_command(info_command.info)
+cli.add_command(plot_command.plot)
+cli.add_command(export_command.export)
+cli.add_command(render_command.render)
 cli.add_command(sweep_command.sweep)
 
 
