@@ -9,6 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .kernels.blocked import build_block_layout
 from .kernels.rest_state import lumped_masses, rest_state, vertex_tet_csr
 from .materials.models import MODEL_IDS, model_lame_parameters
 from .mesh import TetMesh
@@ -65,6 +66,7 @@ class Model:
     ground_stiffness: float | None
     ground_height: float
     ground_friction: float
+    blocks: object = None     # kernels.blocked.BlockLayout: the tets in blocks for the vectorised step
 
     @property
     def has_ground(self):
@@ -174,6 +176,7 @@ def build_model(scene, mesh):
         ground_stiffness=float(ground.stiffness) if ground is not None else None,
         ground_height=float(ground.height) if ground is not None else 0.0,
         ground_friction=float(ground.friction) if ground is not None else 0.0,
+        blocks=build_block_layout(tets, Dm_inv, rest_volume, n),
     )
 
 

@@ -11,10 +11,11 @@ import time as _time
 from dataclasses import dataclass
 from pathlib import Path
 
+import numba
 import numpy as np
 
 from .config import scene_to_yaml
-from .integrators.symplectic_euler import advance
+from .integrators.symplectic_euler import advance, step_arguments, work_buffer
 from .errors import ConfigError, SimulationError
 from .integrators.guard import RECHECK_STEPS, FrameGuard
 from .integrators.stability import exact_stable_step, nodal_frequency_bound
@@ -151,12 +152,14 @@ def frame_fields(model, state, fields):
 
 def step(model, state, dt, step_count, damping, corner_forces):
     """Advance ``state`` in place by ``step_count`` symplectic-Euler steps of ``dt`` [s]."""
+    blocks, colour_offsets, scatter, offsets, slots, vertex_forces, corner = step_arguments(model, corner_forces)
     advance(state.x, state.v, state.step, step_count, dt,
-            model.tets, model.Dm_inv, model.rest_volume, model.material_id, model.lam, model.mu,
-            model.csr_offsets, model.csr_slots, corner_forces,
+            blocks, colour_offsets, scatter, model.material_id, model.lam, model.mu, offsets, slots,
+            vertex_forces, corner,
             model.inv_mass, model.external_accel,
             model.held, state.held_start, model.held_velocity,
-            model.ground_arguments(), math.exp(-damping * dt) if damping > 0.0 else None)
+            model.ground_arguments(), math.exp(-damping * dt) if damping > 0.0 else None,
+            numba.get_num_threads())
     state.step += step_count
 
 
@@ -189,7 +192,7 @@ def simulate(prepared, output_path, progress=None, should_stop=None, resume=Fals
     scene, model, plan = prepared.scene, prepared.model, prepared.plan
     state = initial_state(scene, model)
     fields = scene.output.fields
-    corner_forces = np.empty((model.tet_count, 4, 3))
+    corner_forces = work_buffer(model)
     guard = FrameGuard(model, prepared.wave_speed, plan.dt, scene.time.dt_policy, state)
 
     def write_frame(writer):

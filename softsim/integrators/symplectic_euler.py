@@ -10,13 +10,16 @@ One step, for every vertex ``i`` (Sifakis & Barbic 2012, section 6):
 
 Features a scene does not use cost nothing: ``ground`` and ``damping_factor`` are ``None`` then,
 and Numba compiles (and caches) a separate specialisation of ``advance`` in which those branches
-are pruned away.  Each step evaluates the corner forces of every tet in parallel, then gathers
-them per vertex in a fixed order (deterministic results).
+are pruned away.  Each step evaluates the corner forces of blocks of tets in vectorised code
+(``kernels.blocked``), then sums them per vertex in a fixed order (deterministic results): scattered
+one colour of blocks at a time, or stored per (tet, corner) and gathered per vertex (small meshes).
 """
 
+import numpy as np
 from numba import prange
 
-from ..kernels.forces import gather_vertex_force, tet_corner_forces
+from ..kernels.blocked import BLOCK, ROWS, block_forces, scatter_block, store_block_corners
+from ..kernels.forces import gather_vertex_force
 from ..kernels.jit import njit, njit_parallel
 
 
@@ -81,39 +84,131 @@ def move_vertex(x, v, i, dt, t_next, held, held_start, held_velocity):
             x[i, k] += dt * v[i, k]
 
 
+@njit
+def update_vertex(x, v, i, fx, fy, fz, dt, t_next, inv_mass, external_accel, held, held_start, held_velocity,
+                  ground, damping_factor):
+    """One step of vertex ``i`` from its elastic force ``(fx, fy, fz)`` [N] (see the module docstring).
+
+    With a ground, ``x`` is not moved here: contact reads neighbours' positions, so the caller moves
+    every vertex in a second pass.
+    """
+    w = inv_mass[i]
+    v[i, 0] += dt * (fx * w + external_accel[i, 0])
+    v[i, 1] += dt * (fy * w + external_accel[i, 1])
+    v[i, 2] += dt * (fz * w + external_accel[i, 2])
+    if ground is not None:
+        ground_contact(x, v, i, dt, inv_mass, ground)
+    if damping_factor is not None:
+        v[i, 0] *= damping_factor
+        v[i, 1] *= damping_factor
+        v[i, 2] *= damping_factor
+    if ground is None:
+        move_vertex(x, v, i, dt, t_next, held, held_start, held_velocity)
+
+
+@njit
+def block_range_forces(x, blocks, first, stop, model, lam, mu, scatter, vertex_forces, corner_forces):
+    """Forces of the blocks ``blocks[0][first:stop]`` (block ids).
+
+    scatter: add them to ``vertex_forces`` (node_count, 3) (the blocks must share no vertex); else
+    store them per (tet, corner) into ``corner_forces`` (tet_count, 4, 3).
+    """
+    block_ids, block_tets, block_rest, tet_count = blocks
+    buf = np.empty(ROWS * BLOCK)
+    for k in range(first, stop):
+        b = block_ids[k]
+        block_forces(x, block_tets, block_rest, b, model, lam, mu, buf)
+        lane_count = min(BLOCK, tet_count - b * BLOCK)
+        if scatter:
+            scatter_block(block_tets, b, lane_count, buf, vertex_forces)
+        else:
+            store_block_corners(b, lane_count, buf, corner_forces)
+
+
 @njit_parallel
 def advance(x, v, step_start, step_count, dt,
-            tets, Dm_inv, rest_volume, model, lam, mu, offsets, slots, corner_forces,
+            blocks, colour_offsets, scatter, model, lam, mu, offsets, slots, vertex_forces, corner_forces,
             inv_mass, external_accel, held, held_start, held_velocity,
-            ground, damping_factor):
+            ground, damping_factor, threads):
     """Advance positions ``x`` and velocities ``v`` (node_count, 3) [m, m/s] in place by ``step_count`` steps.
 
     step_start: index of the first step (time ``step_start * dt`` [s]); dt [s].
-    tets (m, 4), Dm_inv (m, 3, 3) [1/m], rest_volume (m,) [m^3]; model id and Lame lam, mu [Pa].
-    offsets (n+1,), slots (4m,): vertex -> (tet, corner) CSR; corner_forces (m, 4, 3): work buffer.
+    blocks: ``(block_ids, block_tets, block_rest, tet_count)`` of ``kernels.blocked.BlockLayout``, the
+    block ids in colour order; colour_offsets: (colours + 1,) into block_ids; model id, Lame lam, mu [Pa].
+    scatter True: the forces are added a colour at a time into ``vertex_forces`` (node_count, 3);
+    False: stored into ``corner_forces`` (tet_count, 4, 3) and gathered per vertex through the
+    vertex -> (tet, corner) map ``offsets`` (n+1,), ``slots`` (4m,).
     inv_mass (n,) [1/kg]; external_accel (n, 3) [m/s^2]: gravity plus tractions / mass.
     held (n, 3) bool; held_start, held_velocity (n, 3) [m, m/s]: prescribed motion of held components.
     ground: None, or the tuple ``ground_contact`` takes; damping_factor: None, or exp(-damping dt).
+    threads: ``numba.get_num_threads()``.
+
+    The blocks are split into as many contiguous chunks as threads (a scratch buffer per chunk);
+    every vertex sums its forces in a fixed order, so a run gives the same bits every time.
     """
     node_count = x.shape[0]
+    block_count = blocks[0].shape[0]
+    if scatter:
+        for i in prange(node_count):
+            vertex_forces[i, 0] = 0.0
+            vertex_forces[i, 1] = 0.0
+            vertex_forces[i, 2] = 0.0
     for step in range(step_start, step_start + step_count):
         t_next = (step + 1) * dt
-        for e in prange(tets.shape[0]):
-            tet_corner_forces(x, tets, Dm_inv, rest_volume, e, model, lam, mu, corner_forces)
+        if scatter:
+            for colour in range(colour_offsets.shape[0] - 1):
+                first = colour_offsets[colour]
+                count = colour_offsets[colour + 1] - first
+                chunks = min(threads, count)
+                for chunk in prange(chunks):
+                    block_range_forces(x, blocks, first + chunk * count // chunks,
+                                       first + (chunk + 1) * count // chunks, model, lam, mu, scatter,
+                                       vertex_forces, corner_forces)
+        else:
+            chunks = min(threads, block_count)
+            for chunk in prange(chunks):
+                block_range_forces(x, blocks, chunk * block_count // chunks, (chunk + 1) * block_count // chunks,
+                                   model, lam, mu, scatter, vertex_forces, corner_forces)
         for i in prange(node_count):
-            fx, fy, fz = gather_vertex_force(corner_forces, offsets, slots, i)
-            w = inv_mass[i]
-            v[i, 0] += dt * (fx * w + external_accel[i, 0])
-            v[i, 1] += dt * (fy * w + external_accel[i, 1])
-            v[i, 2] += dt * (fz * w + external_accel[i, 2])
-            if ground is not None:
-                ground_contact(x, v, i, dt, inv_mass, ground)
-            if damping_factor is not None:
-                v[i, 0] *= damping_factor
-                v[i, 1] *= damping_factor
-                v[i, 2] *= damping_factor
-            if ground is None:   # contact reads neighbours' positions: move them in a second pass
-                move_vertex(x, v, i, dt, t_next, held, held_start, held_velocity)
+            if scatter:
+                fx = vertex_forces[i, 0]
+                fy = vertex_forces[i, 1]
+                fz = vertex_forces[i, 2]
+                vertex_forces[i, 0] = 0.0
+                vertex_forces[i, 1] = 0.0
+                vertex_forces[i, 2] = 0.0
+            else:
+                fx, fy, fz = gather_vertex_force(corner_forces, offsets, slots, i)
+            update_vertex(x, v, i, fx, fy, fz, dt, t_next, inv_mass, external_accel, held, held_start,
+                          held_velocity, ground, damping_factor)
         if ground is not None:
             for i in prange(node_count):
                 move_vertex(x, v, i, dt, t_next, held, held_start, held_velocity)
+
+
+def step_arguments(model, work):
+    """The ``blocks, colour_offsets, scatter, offsets, slots, vertex_forces, corner_forces``
+    arguments of ``advance`` for ``model``; work: a float64 buffer from ``work_buffer`` (or larger).
+    """
+    layout = model.blocks
+    n, m = model.node_count, model.tet_count
+    flat = work.reshape(-1)
+    if layout.scatter == "colour":
+        blocks = (layout.colour_blocks, layout.tets, layout.rest, layout.tet_count)
+        vertex_forces = flat[:3 * n].reshape(n, 3) if flat.size >= 3 * n else np.empty((n, 3))
+        corner_forces = np.empty((0, 4, 3))
+        scatter = True
+    else:
+        blocks = (np.arange(layout.tets.shape[0], dtype=np.int64), layout.tets, layout.rest, layout.tet_count)
+        vertex_forces = np.empty((0, 3))
+        corner_forces = flat[:12 * m].reshape(m, 4, 3)
+        scatter = False
+    return (blocks, layout.colour_offsets, scatter, model.csr_offsets, model.csr_slots,
+            vertex_forces, corner_forces)
+
+
+def work_buffer(model):
+    """The work buffer ``advance`` needs for ``model``: vertex forces or per-(tet, corner) forces."""
+    if model.blocks.scatter == "colour":
+        return np.zeros((model.node_count, 3))
+    return np.empty((model.tet_count, 4, 3))

@@ -60,6 +60,15 @@ def njit(func):
     return _stamp_with_package_hash(numba.njit(**JIT_OPTIONS)(func))
 
 
+def njit_inline(func):
+    """Compile ``func`` inlined into every caller at Numba IR level (``inline="always"``).
+
+    For the bodies of loops that must vectorise: LLVM does not inline a callee it finds large, and
+    a loop with a call in it stays scalar.  Not compiled (nor cached) on its own.
+    """
+    return numba.njit(inline="always", **JIT_OPTIONS)(func)
+
+
 def njit_parallel(func):
     """Compile ``func`` as a cached Numba function whose ``prange`` loops run in parallel."""
     return _stamp_with_package_hash(numba.njit(parallel=True, **JIT_OPTIONS)(func))

@@ -1,0 +1,300 @@
+"""Elastic forces of blocks of ``BLOCK`` tets at a time, written so that LLVM vectorises them.
+
+The per-tet kernel of ``forces.py`` reads ``x[tets[e]]`` and ``Dm_inv[e]`` from 2D/3D arrays and
+compiles to scalar code.  Here the tets are grouped into blocks of ``BLOCK`` and every quantity of a
+block is one row of ``BLOCK`` lanes in a single flat scratch buffer (structure of arrays):
+
+    rows  0..8   Dm^-1 (row-major)          [1/m]     copied from ``block_rest[b, 0:9]``
+    row   9      rest volume V0             [m^3]     copied from ``block_rest[b, 9]``
+    rows 10..21  corner positions x_c,k     [m]       gathered from ``x``: row 10 + 3 c + k
+    rows 22..33  corner forces f_c,k        [N]       row 22 + 3 c + k
+
+Row offsets are compile-time constants and every access of the lane loop is ``buf[row * BLOCK + j]``
+of one array: LLVM sees that no store can alias a later load and emits packed SIMD code (AVX2 /
+AVX-512) with no runtime alias checks.  The material law in the lane loop is the 9-tuple function
+of ``materials.models``, inlined; one lane loop per model keeps the law a compile-time choice.
+
+Forces (Sifakis & Barbic 2012, section 4.3): ``H = -V0 P(F) Dm^-T``; its columns are the forces on
+corners 1, 2, 3 and ``f0 = -(h1 + h2 + h3)``, exactly as ``forces.tet_corner_forces`` computes them.
+
+Blocks are padded to a whole block: a padding lane repeats the block's first tet with ``V0 = 0``,
+so it computes finite zero forces and the scatter skips it.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..materials.models import (
+    COROTATED,
+    NEOHOOKEAN,
+    STVK,
+    corotated_first_piola,
+    linear_first_piola,
+    neohookean_first_piola,
+    stvk_first_piola,
+)
+from .jit import njit, njit_inline
+
+BLOCK = 64                 # tets per block (a multiple of the SIMD width: 8 doubles in AVX-512)
+ROW_DM_INV = 0
+ROW_VOLUME = 9
+ROW_X = 10
+ROW_F = 22
+ROWS = 34                  # rows of the scratch buffer; ``ROWS * BLOCK`` float64 per chunk of blocks
+
+
+# Scatter of the corner forces: ``colour`` adds each block's forces straight into the vertex forces,
+# one colour of blocks at a time (no per-tet buffer, a barrier per colour); ``csr`` writes them
+# into a per-(tet, corner) buffer that each vertex then gathers (two barriers per step, 96 B/tet
+# more traffic).  Below this many tets the colour barriers cost more than the buffer saves.
+COLOUR_MIN_TETS = 50_000
+
+
+@dataclass(frozen=True)
+class BlockLayout:
+    """The tets of a model in blocks of ``BLOCK`` for the vectorised step (see the module docstring).
+
+    tets (block_count, 4, BLOCK) uint32; rest (block_count, 10, BLOCK) [1/m, m^3]; tet_count: real
+    tets (the last block is padded); colour_offsets (colours + 1,), colour_blocks (block_count,):
+    blocks grouped by colour; scatter: ``"colour"`` or ``"csr"``.
+    """
+
+    tets: np.ndarray
+    rest: np.ndarray
+    tet_count: int
+    colour_offsets: np.ndarray
+    colour_blocks: np.ndarray
+    scatter: str
+
+    @property
+    def colour_count(self):
+        return self.colour_offsets.shape[0] - 1
+
+
+def build_block_layout(tets, Dm_inv, rest_volume, node_count, scatter=None):
+    """The ``BlockLayout`` of a mesh; ``scatter`` None picks by size (``COLOUR_MIN_TETS``)."""
+    block_tets, block_rest = block_layout(tets, Dm_inv, rest_volume)
+    colour_offsets, colour_blocks = block_colouring(block_tets, tets.shape[0], node_count)
+    if scatter is None:
+        scatter = "colour" if tets.shape[0] >= COLOUR_MIN_TETS else "csr"
+    return BlockLayout(tets=block_tets, rest=block_rest, tet_count=int(tets.shape[0]),
+                       colour_offsets=colour_offsets, colour_blocks=colour_blocks, scatter=scatter)
+
+
+def block_layout(tets, Dm_inv, rest_volume):
+    """``(block_tets, block_rest)``: the tets in blocks of ``BLOCK``, structure of arrays.
+
+    block_tets: (block_count, 4, BLOCK) uint32 corner vertex indices; block_rest: (block_count, 10,
+    BLOCK) float64, rows ``Dm^-1`` (9, row-major) [1/m] and ``V0`` [m^3].  Tet ``e`` is lane
+    ``e % BLOCK`` of block ``e // BLOCK``; padding lanes repeat the block's first tet with V0 = 0.
+    """
+    m = tets.shape[0]
+    block_count = -(-m // BLOCK)
+    padded = block_count * BLOCK
+    lane_tet = np.arange(padded)
+    lane_tet = np.where(lane_tet < m, lane_tet, (lane_tet // BLOCK) * BLOCK)
+    block_tets = np.ascontiguousarray(tets[lane_tet].reshape(block_count, BLOCK, 4).transpose(0, 2, 1))
+    rest = np.empty((padded, 10))
+    rest[:, :9] = Dm_inv.reshape(m, 9)[lane_tet]
+    rest[:, 9] = np.where(np.arange(padded) < m, rest_volume[lane_tet], 0.0)
+    block_rest = np.ascontiguousarray(rest.reshape(block_count, BLOCK, 10).transpose(0, 2, 1))
+    return block_tets.astype(np.uint32), block_rest
+
+
+def block_colouring(block_tets, tet_count, node_count):
+    """``(colour_offsets, colour_blocks)``: blocks grouped so that no two of a colour share a vertex.
+
+    Greedy colouring in block order.  The blocks of colour ``c`` are
+    ``colour_blocks[colour_offsets[c]:colour_offsets[c + 1]]``, in increasing order: scattering one
+    colour at a time, in parallel over its blocks, no two threads write the same vertex and every
+    vertex receives its contributions in the same order on every run.
+    """
+    block_count = block_tets.shape[0]
+    lanes = np.arange(block_count * BLOCK).reshape(block_count, 1, BLOCK)
+    real = np.broadcast_to(lanes < tet_count, block_tets.shape)
+    vertex = block_tets[real]
+    block = np.broadcast_to(np.arange(block_count)[:, None, None], block_tets.shape)[real]
+    pairs = np.unique(vertex.astype(np.int64) * block_count + block)
+    vertex, block = pairs // block_count, pairs % block_count
+    # vertex -> blocks (CSR) and block -> vertices
+    v_offsets = np.zeros(node_count + 1, dtype=np.int64)
+    np.cumsum(np.bincount(vertex, minlength=node_count), out=v_offsets[1:])
+    order = np.argsort(block, kind="stable")
+    b_vertices = vertex[order]
+    b_offsets = np.zeros(block_count + 1, dtype=np.int64)
+    np.cumsum(np.bincount(block, minlength=block_count), out=b_offsets[1:])
+    colour = _greedy_colours(v_offsets, block, b_offsets, b_vertices, block_count)
+    colour_blocks = np.argsort(colour, kind="stable").astype(np.int64)
+    colour_offsets = np.zeros(int(colour.max(initial=-1)) + 2, dtype=np.int64)
+    np.cumsum(np.bincount(colour), out=colour_offsets[1:])
+    return colour_offsets, colour_blocks
+
+
+@njit
+def _greedy_colours(v_offsets, v_blocks, b_offsets, b_vertices, block_count):
+    """Smallest colour per block not used by an earlier block sharing a vertex with it."""
+    colour = np.full(block_count, -1, dtype=np.int64)
+    taken = np.full(block_count + 1, -1, dtype=np.int64)      # taken[c] == b: colour c used near b
+    for b in range(block_count):
+        for k in range(b_offsets[b], b_offsets[b + 1]):
+            i = b_vertices[k]
+            for s in range(v_offsets[i], v_offsets[i + 1]):
+                c = colour[v_blocks[s]]
+                if c >= 0:
+                    taken[c] = b
+        c = 0
+        while taken[c] == b:
+            c += 1
+        colour[b] = c
+    return colour
+
+
+# The material laws of ``materials.models``, inlined into the lane loops at Numba IR level: as
+# ordinary calls LLVM finds them too large to inline, and a loop with a call does not vectorise.
+_stvk_first_piola = njit_inline(stvk_first_piola.py_func)
+_neohookean_first_piola = njit_inline(neohookean_first_piola.py_func)
+_linear_first_piola = njit_inline(linear_first_piola.py_func)
+# corotated_first_piola stays an ordinary call: its SVD allocates and branches, scalar either way.
+
+
+# ---------------------------------------------------------------------------------------------
+# one block: gather, forces, scatter
+
+
+@njit
+def load_block(x, block_tets, block_rest, b, buf):
+    """Copy block ``b``'s rest data and gather its corner positions into the scratch ``buf``."""
+    for r in range(10):
+        for j in range(BLOCK):
+            buf[r * BLOCK + j] = block_rest[b, r, j]
+    for c in range(4):
+        for j in range(BLOCK):
+            i = block_tets[b, c, j]
+            buf[(ROW_X + 3 * c) * BLOCK + j] = x[i, 0]
+            buf[(ROW_X + 3 * c + 1) * BLOCK + j] = x[i, 1]
+            buf[(ROW_X + 3 * c + 2) * BLOCK + j] = x[i, 2]
+
+
+@njit_inline
+def lane_deformation_gradient(buf, j):
+    """``F = Ds Dm^-1`` of lane ``j`` (9-tuple), ``Ds`` the edges ``x_c - x_0`` as columns."""
+    d = (buf[(ROW_X + 3) * BLOCK + j] - buf[ROW_X * BLOCK + j],
+         buf[(ROW_X + 6) * BLOCK + j] - buf[ROW_X * BLOCK + j],
+         buf[(ROW_X + 9) * BLOCK + j] - buf[ROW_X * BLOCK + j],
+         buf[(ROW_X + 4) * BLOCK + j] - buf[(ROW_X + 1) * BLOCK + j],
+         buf[(ROW_X + 7) * BLOCK + j] - buf[(ROW_X + 1) * BLOCK + j],
+         buf[(ROW_X + 10) * BLOCK + j] - buf[(ROW_X + 1) * BLOCK + j],
+         buf[(ROW_X + 5) * BLOCK + j] - buf[(ROW_X + 2) * BLOCK + j],
+         buf[(ROW_X + 8) * BLOCK + j] - buf[(ROW_X + 2) * BLOCK + j],
+         buf[(ROW_X + 11) * BLOCK + j] - buf[(ROW_X + 2) * BLOCK + j])
+    m = (buf[0 * BLOCK + j], buf[1 * BLOCK + j], buf[2 * BLOCK + j],
+         buf[3 * BLOCK + j], buf[4 * BLOCK + j], buf[5 * BLOCK + j],
+         buf[6 * BLOCK + j], buf[7 * BLOCK + j], buf[8 * BLOCK + j])
+    return (d[0] * m[0] + d[1] * m[3] + d[2] * m[6],
+            d[0] * m[1] + d[1] * m[4] + d[2] * m[7],
+            d[0] * m[2] + d[1] * m[5] + d[2] * m[8],
+            d[3] * m[0] + d[4] * m[3] + d[5] * m[6],
+            d[3] * m[1] + d[4] * m[4] + d[5] * m[7],
+            d[3] * m[2] + d[4] * m[5] + d[5] * m[8],
+            d[6] * m[0] + d[7] * m[3] + d[8] * m[6],
+            d[6] * m[1] + d[7] * m[4] + d[8] * m[7],
+            d[6] * m[2] + d[7] * m[5] + d[8] * m[8])
+
+
+@njit_inline
+def lane_store_forces(buf, j, P):
+    """Corner forces of lane ``j`` from its stress ``P``: ``H = -V0 P Dm^-T``, ``f0 = -(h1+h2+h3)``."""
+    m0 = buf[0 * BLOCK + j]
+    m1 = buf[1 * BLOCK + j]
+    m2 = buf[2 * BLOCK + j]
+    m3 = buf[3 * BLOCK + j]
+    m4 = buf[4 * BLOCK + j]
+    m5 = buf[5 * BLOCK + j]
+    m6 = buf[6 * BLOCK + j]
+    m7 = buf[7 * BLOCK + j]
+    m8 = buf[8 * BLOCK + j]
+    w = -buf[ROW_VOLUME * BLOCK + j]
+    p = P
+    h1 = w * (p[0] * m0 + p[1] * m1 + p[2] * m2)
+    h2 = w * (p[0] * m3 + p[1] * m4 + p[2] * m5)
+    h3 = w * (p[0] * m6 + p[1] * m7 + p[2] * m8)
+    buf[(ROW_F + 3) * BLOCK + j] = h1
+    buf[(ROW_F + 6) * BLOCK + j] = h2
+    buf[(ROW_F + 9) * BLOCK + j] = h3
+    buf[(ROW_F + 0) * BLOCK + j] = -(h1 + h2 + h3)
+    h1 = w * (p[3] * m0 + p[4] * m1 + p[5] * m2)
+    h2 = w * (p[3] * m3 + p[4] * m4 + p[5] * m5)
+    h3 = w * (p[3] * m6 + p[4] * m7 + p[5] * m8)
+    buf[(ROW_F + 4) * BLOCK + j] = h1
+    buf[(ROW_F + 7) * BLOCK + j] = h2
+    buf[(ROW_F + 10) * BLOCK + j] = h3
+    buf[(ROW_F + 1) * BLOCK + j] = -(h1 + h2 + h3)
+    h1 = w * (p[6] * m0 + p[7] * m1 + p[8] * m2)
+    h2 = w * (p[6] * m3 + p[7] * m4 + p[8] * m5)
+    h3 = w * (p[6] * m6 + p[7] * m7 + p[8] * m8)
+    buf[(ROW_F + 5) * BLOCK + j] = h1
+    buf[(ROW_F + 8) * BLOCK + j] = h2
+    buf[(ROW_F + 11) * BLOCK + j] = h3
+    buf[(ROW_F + 2) * BLOCK + j] = -(h1 + h2 + h3)
+
+
+@njit
+def stvk_block(buf, lam, mu):
+    for j in range(BLOCK):
+        lane_store_forces(buf, j, _stvk_first_piola(lane_deformation_gradient(buf, j), lam, mu))
+
+
+@njit
+def neohookean_block(buf, lam, mu):
+    for j in range(BLOCK):
+        lane_store_forces(buf, j, _neohookean_first_piola(lane_deformation_gradient(buf, j), lam, mu))
+
+
+@njit
+def corotated_block(buf, lam, mu):
+    for j in range(BLOCK):
+        lane_store_forces(buf, j, corotated_first_piola(lane_deformation_gradient(buf, j), lam, mu))
+
+
+@njit
+def linear_block(buf, lam, mu):
+    for j in range(BLOCK):
+        lane_store_forces(buf, j, _linear_first_piola(lane_deformation_gradient(buf, j), lam, mu))
+
+
+@njit
+def block_forces(x, block_tets, block_rest, b, model, lam, mu, buf):
+    """Corner forces [N] of block ``b`` into rows ``ROW_F..`` of ``buf`` (``ROWS * BLOCK``,)."""
+    load_block(x, block_tets, block_rest, b, buf)
+    if model == STVK:
+        stvk_block(buf, lam, mu)
+    elif model == NEOHOOKEAN:
+        neohookean_block(buf, lam, mu)
+    elif model == COROTATED:
+        corotated_block(buf, lam, mu)
+    else:
+        linear_block(buf, lam, mu)
+
+
+@njit
+def scatter_block(block_tets, b, lane_count, buf, f):
+    """Add the corner forces of the first ``lane_count`` lanes of ``buf`` to ``f`` (node_count, 3)."""
+    for j in range(lane_count):
+        for c in range(4):
+            i = block_tets[b, c, j]
+            f[i, 0] += buf[(ROW_F + 3 * c) * BLOCK + j]
+            f[i, 1] += buf[(ROW_F + 3 * c + 1) * BLOCK + j]
+            f[i, 2] += buf[(ROW_F + 3 * c + 2) * BLOCK + j]
+
+
+@njit
+def store_block_corners(b, lane_count, buf, corner_forces):
+    """Write the corner forces of the first ``lane_count`` lanes into ``corner_forces`` (m, 4, 3)."""
+    e0 = b * BLOCK
+    for j in range(lane_count):
+        for c in range(4):
+            for k in range(3):
+                corner_forces[e0 + j, c, k] = buf[(ROW_F + 3 * c + k) * BLOCK + j]
+
+
