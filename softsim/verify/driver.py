@@ -1,0 +1,127 @@
+"""Running one verification scene through the library, timing only the time steps.
+
+``Run`` prepares a scene with ``softsim.simulation.prepare`` (meshing, model, stable step) and
+advances it with ``softsim.simulation.step``, the same compiled loop ``softsim run`` uses, but
+without writing frames: the cases measure what they need between calls.  ``mutate`` replaces the
+prepared ``Model`` before anything runs (the tests feed broken material constants or volumes in
+this way), and the time step is then taken from the model actually run.
+
+Wall time counts the calls to ``step`` only: not meshing, not the one-step JIT warm-up, not the
+measurements between calls (``setup_s`` holds the preparation time).
+"""
+
+import copy
+import math
+import time as _time
+from dataclasses import replace
+
+import numpy as np
+
+from ..config import parse_scene
+from ..integrators.timestep import AUTO_SAFETY
+from ..model import State, initial_state
+from ..simulation import prepare, stable_dt_estimate, step
+
+
+class Run:
+    """A prepared verification scene and its state, advanced in timed chunks.
+
+    scene_data: the raw scene mapping (validated with ``parse_scene``); dt_factor: the step is
+    ``dt_factor x`` the ``dt: auto`` step (``AUTO_SAFETY x`` the stable-step bound) of the model
+    run; mutate: optional ``Model -> Model`` applied after preparation.
+    Attributes: scene, model (the one stepped), reference_model (as prepared, before ``mutate``:
+    energies are measured with it, so a broken force shows as energy that is not conserved), dt [s],
+    state, steps (taken), wall_time_s, setup_s.
+    """
+
+    def __init__(self, scene_data, dt_factor=1.0, mutate=None):
+        started = _time.perf_counter()
+        self.scene = parse_scene(copy.deepcopy(scene_data))
+        prepared = prepare(self.scene)
+        model = prepared.model if mutate is None else mutate(prepared.model)
+        self.model = model
+        self.reference_model = prepared.model     # as built: what energies are measured with
+        self.dt = dt_factor * AUTO_SAFETY * stable_dt_estimate(model)
+        self.damping = self.scene.damping
+        self.state = initial_state(self.scene, model)
+        self._corner_forces = np.empty((model.tet_count, 4, 3))
+        self.steps = 0
+        self.wall_time_s = 0.0
+        self._warm_up()
+        self.setup_s = _time.perf_counter() - started
+
+    def _warm_up(self):
+        """One step on a throw-away copy: compiles (or loads) this scene's specialisation of the loop."""
+        s = self.state
+        scratch = State(x=s.x.copy(), v=s.v.copy(), step=s.step, held_start=s.held_start.copy())
+        step(self.model, scratch, self.dt, 1, self.damping, self._corner_forces)
+
+    @property
+    def time(self):
+        """Simulated time reached [s]."""
+        return self.steps * self.dt
+
+    @property
+    def tet_count(self):
+        return self.model.tet_count
+
+    def restart_from(self, x, v=None):
+        """Set the free components of the state to positions ``x`` (and velocities ``v``, default 0)."""
+        held = self.model.held
+        self.state.x[...] = np.where(held, self.state.x, x)
+        self.state.v[...] = np.where(held, self.state.v, 0.0 if v is None else v)
+
+    def advance(self, steps):
+        """Take ``steps`` time steps (timed)."""
+        if steps <= 0:
+            return
+        started = _time.perf_counter()
+        step(self.model, self.state, self.dt, int(steps), self.damping, self._corner_forces)
+        self.wall_time_s += _time.perf_counter() - started
+        self.steps += int(steps)
+
+    def steps_for(self, duration):
+        """Whole steps covering ``duration`` [s] (at least one)."""
+        return max(1, math.ceil(duration / self.dt - 1e-9))
+
+    def relax(self, measure, interval, rel_tol, max_time, min_time=0.0):
+        """Advance in chunks of ``interval`` [s] until ``measure()`` changes by less than ``rel_tol``
+        of its size over one chunk (after ``min_time``), or until ``max_time`` [s].
+
+        Returns ``(value, converged)``.  With damping ``2 omega`` for the slowest mode and
+        ``interval = 1 / omega`` the remaining transient is about the last change.
+        """
+        chunk = self.steps_for(interval)
+        previous = measure()
+        while self.time < max_time:
+            self.advance(chunk)
+            value = measure()
+            if self.time >= min_time and abs(value - previous) <= rel_tol * abs(value):
+                return value, True
+            previous = value
+        return previous, False
+
+
+def with_lame(model, lam=None, mu=None):
+    """``model`` with other Lame parameters (for mutation tests and what-ifs)."""
+    return replace(model, lam=model.lam if lam is None else float(lam), mu=model.mu if mu is None else float(mu))
+
+
+def tet_deformation_gradients(rest_points, x, tets):
+    """``F = Ds Dm^-1`` of every tet, shape (m, 3, 3), computed in NumPy from rest and current positions."""
+    X = rest_points[tets]
+    Y = x[tets]
+    Dm = np.transpose(X[:, 1:] - X[:, :1], (0, 2, 1))
+    Ds = np.transpose(Y[:, 1:] - Y[:, :1], (0, 2, 1))
+    return Ds @ np.linalg.inv(Dm)
+
+
+def unique_edges(tets):
+    """The distinct edges (k, 2) of a tet mesh."""
+    pairs = np.concatenate([tets[:, [a, b]] for a, b in ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))])
+    return np.unique(np.sort(pairs, axis=1), axis=0)
+
+
+def face_mask(points, axis, value, tolerance=1e-9):
+    """Bool mask of ``points`` on the plane ``coordinate[axis] == value``."""
+    return np.abs(points[:, axis] - value) <= tolerance

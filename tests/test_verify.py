@@ -1,0 +1,277 @@
+"""``softsim verify``: the quick report as a real check, and mutation tests proving that each
+threshold catches a broken kernel.
+
+The quick report runs once (module fixture).  Every threshold is stated next to why it holds,
+from the scene's own parameters; the mutation tests feed a broken quantity into the prepared
+model (``mutate``: mu doubled, lambda and mu swapped, rest volumes scaled, Dm^-1 transposed) and
+check that the same threshold then fails.  nu is far from 0.25 wherever a swap must show
+(lambda = mu there).
+"""
+
+import csv
+import math
+import os
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from softsim.verify import references as ref
+from softsim.verify.cases import CASES, AxialVibration, Cantilever, Energy, Patch, Traction
+from softsim.verify.driver import with_lame
+from softsim.verify.report import COLUMNS, pareto_front, verify_report
+
+ROTATION_INVARIANT = ("stvk", "corotated", "neohookean")
+# Long checks run only with SOFTSIM_SLOW=1 (pyproject's "slow" marker).
+slow = [pytest.mark.slow, pytest.mark.skipif(not os.environ.get("SOFTSIM_SLOW"), reason="slow: set SOFTSIM_SLOW=1")]
+
+
+@pytest.fixture(scope="module")
+def report(tmp_path_factory):
+    out = tmp_path_factory.mktemp("verify")
+    return verify_report(out, quick=True, threads=1)
+
+
+def rows_of(rows, case, quantity, model=None, ladder=None):
+    return [r for r in rows if r.case == case and r.quantity == quantity and (model is None or r.model == model)
+            and (ladder is None or r.ladder == ladder)]
+
+
+# ---------------------------------------------------------------------------------------------
+# Thresholds (each a function of the rows of one case, so the mutation tests reuse them)
+
+
+def cantilever_failures(rows):
+    """Linear tets lock: each model's deflection must grow under refinement and stay below the 3D
+    answer (<= 1.03 x Timoshenko), and the Richardson limit of the ladder must land within
+    0.97-1.10 x Timoshenko (measured: 0.995 from t/4, t/6, t/8; 1.05 from the quick ladder t/2, t/3,
+    t/4, which extrapolates from the pre-asymptotic range with order 1.2).  Stiffness 25 % off
+    moves the limit out of that band (volumes x 0.8: 1.32; mu x 2: 0.56; swap at nu = 0.3: 0.76)."""
+    p = CASES["cantilever"].params
+    _, w_t = ref.cantilever_tip_deflection(p.length, p.thickness, p.thickness, p.youngs_modulus,
+                                           p.poissons_ratio, p.density, p.gravity)
+    failures = []
+    for model in {r.model for r in rows}:
+        ladder = sorted(rows_of(rows, "cantilever", "tip deflection", model), key=lambda r: -r.refinement)
+        w = [r.value for r in ladder]
+        if any(b <= a for a, b in zip(w, w[1:])) or max(w) > 1.03 * w_t:
+            failures.append(f"{model}: deflections {w} not increasing below 1.03 x {w_t:.4g}")
+        limit, _, _ = ref.richardson_limit([r.refinement for r in ladder], w)
+        if not 0.97 < limit / w_t < 1.10:
+            failures.append(f"{model}: Richardson limit / Timoshenko = {limit / w_t:.4f}")
+        if any("NOT at rest" in r.note for r in ladder):
+            failures.append(f"{model}: not at rest")
+    return failures
+
+
+def axial_failures(rows, p=AxialVibration()):
+    """Period error at most 1.5 x the 1D lumped-mass dispersion (k h)^2 / 24 with k = pi / 2L (the
+    measured error is 1.1 x it; symplectic Euler's shortening only reduces it)."""
+    failures = []
+    k = 0.5 * math.pi / p.length
+    for r in rows_of(rows, "axial-vibration", "period"):
+        h = r.element_size
+        if not r.error < 1.5 * (k * h) ** 2 / 24.0:
+            failures.append(f"{r.model} h={h:g} dt={r.dt:.3g}: period error {r.error:.3g}")
+    return failures
+
+
+def traction_failures(rows):
+    """linear and corotated: the homogeneous stretch is exact, error below 1e-7 (relaxation to
+    1e-9); stvk and neohookean: within 2 sigma/E of small-strain theory (finite strain)."""
+    failures = []
+    for r in rows_of(rows, "traction", "elongation") + rows_of(rows, "traction", "contraction"):
+        load = float(r.note.split("sigma/E = ")[1].split(";")[0])
+        bound = 1e-7 if r.model in ("linear", "corotated") else 2.0 * load
+        if not r.error < bound or "NOT at rest" in r.note:
+            failures.append(f"{r.model} {r.quantity} sigma/E={load:g}: error {r.error:.3g} >= {bound:g}")
+    return failures
+
+
+def patch_failures(rows):
+    """Interior forces at x = A X + b below 1e-11 of the boundary reactions; after relaxation
+    max |F - A| below 1e-9 of |A - I| (round-off is ~1e-13 and ~1e-11)."""
+    failures = []
+    for r in rows_of(rows, "patch", "interior force at AX+b"):
+        if not r.error < 1e-11:
+            failures.append(f"{r.model}: interior force residual {r.error:.3g}")
+    for r in rows_of(rows, "patch", "max |F - A|"):
+        if not r.error < 1e-9:
+            failures.append(f"{r.model}: max |F - A| = {r.error:.3g}")
+    return failures
+
+
+def energy_failures(rows, p=Energy()):
+    """Energy error below 2e-3 x dt / dt_auto (measured 1.6e-3 at dt: auto, first order in dt); the
+    trend over the run below a tenth of the oscillation (bounded, no drift)."""
+    failures = []
+    for r in rows_of(rows, "energy", "energy error"):
+        bound = 2e-3 * r.dt / max(x.dt for x in rows_of(rows, "energy", "energy error", r.model))
+        if not r.error < bound:
+            failures.append(f"{r.model} dt={r.dt:.3g}: energy error {r.error:.3g}")
+    for r in rows_of(rows, "energy", "energy drift"):
+        error = rows_of(rows, "energy", "energy error", r.model)
+        oscillation = next(x.error for x in error if x.dt == r.dt)
+        if not r.error < 0.1 * oscillation:
+            failures.append(f"{r.model} dt={r.dt:.3g}: drift {r.error:.3g} vs oscillation {oscillation:.3g}")
+    return failures
+
+
+# ---------------------------------------------------------------------------------------------
+# The quick report
+
+
+def test_quick_report_writes_csv_plots_and_summary(report):
+    assert report.csv_path.is_file()
+    with open(report.csv_path) as stream:
+        table = list(csv.reader(stream))
+    assert tuple(table[0]) == COLUMNS
+    assert len(table) == len(report.rows) + 1
+    assert set(report.plot_paths) == set(CASES)
+    for path in report.plot_paths.values():
+        assert path.is_file() and path.stat().st_size > 10_000
+    text = report.summary_path.read_text()
+    for name in CASES:
+        assert f"verify_{name}.png" in text
+    assert "1 %:" in text and "0.1 %:" in text
+    assert {r.model for r in report.rows} == {"linear", "stvk", "corotated", "neohookean"}
+    assert all(r.precision == "float64" and r.steps > 0 or r.quantity == "interior force at AX+b"
+               for r in report.rows)
+
+
+def test_quick_cantilever_converges_towards_the_3d_beam(report):
+    assert cantilever_failures(report.rows) == []
+
+
+def test_quick_axial_period_is_second_order_in_h(report):
+    assert axial_failures(report.rows) == []
+    for model in ("linear", "stvk", "corotated", "neohookean"):
+        ladder = rows_of(report.rows, "axial-vibration", "period", model, "element_size")
+        orders = [r.order for r in ladder if r.order is not None]
+        assert orders and all(1.8 < o < 2.2 for o in orders), orders
+
+
+def test_quick_traction_is_exact_for_a_homogeneous_stretch(report):
+    assert traction_failures(report.rows) == []
+    for model in ("stvk", "neohookean"):       # finite strain: first order in the load
+        ladder = rows_of(report.rows, "traction", "elongation", model, "load")
+        assert all(0.9 < r.order < 1.1 for r in ladder if r.order is not None)
+
+
+def test_quick_free_fall_error_is_exactly_dt_over_t(report):
+    for r in rows_of(report.rows, "rigid-motion", "centroid drop"):
+        expected = r.dt / (r.steps * r.dt)          # symplectic Euler leads g t^2 / 2 by g t dt / 2
+        assert r.error == pytest.approx(expected, rel=1e-6)
+
+
+def test_quick_spin_keeps_shape_and_angular_momentum_except_linear(report):
+    p = CASES["rigid-motion"].params
+    radius = 0.5 * math.sqrt(3.0) * p.size
+    omega = math.sqrt(p.spin_strain * p.youngs_modulus / (p.density * radius ** 2))
+    for r in rows_of(report.rows, "rigid-motion", "edge length"):
+        if r.model in ROTATION_INVARIANT:
+            assert r.error < 2.0 * p.spin_strain
+        else:
+            growth = math.sqrt(1.0 + (omega * r.steps * r.dt) ** 2) - 1.0
+            assert r.error == pytest.approx(growth, rel=1e-2)
+    for r in rows_of(report.rows, "rigid-motion", "angular momentum"):
+        assert r.error < 1e-10
+
+
+def test_quick_patch_test_holds_to_round_off(report):
+    assert patch_failures(report.rows) == []
+
+
+def test_quick_energy_stays_bounded_and_its_error_is_first_order_in_dt(report):
+    assert energy_failures(report.rows) == []
+    for r in rows_of(report.rows, "energy", "energy error"):
+        if r.order is not None:
+            assert 0.9 < r.order < 1.1
+
+
+def test_budget_answers_name_a_run_or_say_why_not(report):
+    for name, lines in report.budgets.items():
+        assert len(lines) == 2, name
+        for line in lines:
+            assert "element size" in line or "not reached" in line or "cannot be told" in line
+
+
+def test_pareto_front_keeps_only_undominated_points():
+    times = [1.0, 2.0, 3.0, 0.5, 2.5]
+    errors = [0.1, 0.05, 0.2, 0.3, 0.01]
+    assert pareto_front(times, errors) == [3, 0, 1, 4]
+
+
+def test_richardson_limit_recovers_a_second_order_sequence():
+    h = [0.4, 0.2, 0.1]
+    limit, k, spread = ref.richardson_limit(h, [3.0 + 0.5 * x ** 2 for x in h])
+    assert limit == pytest.approx(3.0, abs=1e-12) and k == pytest.approx(2.0, abs=1e-6) and spread < 1e-12
+
+
+# ---------------------------------------------------------------------------------------------
+# Mutation tests: the thresholds above catch broken kernels
+
+
+def mu_doubled(model):
+    return with_lame(model, mu=2.0 * model.mu)
+
+
+def lame_swapped(model):
+    return with_lame(model, lam=model.mu, mu=model.lam)
+
+
+def volumes_scaled(model):
+    return replace(model, rest_volume=0.8 * model.rest_volume)
+
+
+MUTATIONS = {"mu doubled": mu_doubled, "lambda and mu swapped": lame_swapped, "rest volumes x 0.8": volumes_scaled}
+
+
+@pytest.mark.parametrize("mutation", MUTATIONS)
+def test_traction_threshold_catches(mutation):
+    """nu = 0.4 (lambda = 4 mu): each mutation changes the elongation or the contraction."""
+    rows = CASES["traction"](models=("linear",), mutate=MUTATIONS[mutation], quick=True,
+                             params=replace(Traction(), quick_load_ratios=(1e-3,), quick_element_sizes=()))
+    assert traction_failures(rows) != []
+
+
+@pytest.mark.parametrize("mutation", MUTATIONS)
+def test_axial_threshold_catches(mutation):
+    """nu = 0, lambda = 0: a swap leaves mu = 0 and the bar's stiffness lambda' = E / 2."""
+    rows = CASES["axial-vibration"](models=("stvk",), mutate=MUTATIONS[mutation], quick=True,
+                                    params=replace(AxialVibration(), quick_divisions=(10,), quick_dt_factors=()))
+    assert axial_failures(rows) != []
+
+
+def tets_perturbed(model):
+    rng = np.random.default_rng(1)
+    return replace(model, rest_volume=model.rest_volume * rng.uniform(0.9, 1.1, model.tet_count))
+
+
+def dm_inv_transposed(model):
+    return replace(model, Dm_inv=np.ascontiguousarray(np.transpose(model.Dm_inv, (0, 2, 1))))
+
+
+@pytest.mark.parametrize("mutation", [tets_perturbed, dm_inv_transposed])
+def test_patch_threshold_catches(mutation):
+    """Uniform F is an equilibrium only if each tet's force is consistent with its geometry."""
+    rows = CASES["patch"](models=("corotated",), mutate=mutation, quick=True)
+    assert patch_failures(rows) != []
+
+
+def test_energy_threshold_catches_a_force_inconsistent_with_the_energy():
+    """Energies are measured with the model as built; a stepped model with mu doubled has forces
+    that are not the gradient of that energy."""
+    rows = CASES["energy"](models=("neohookean",), mutate=mu_doubled, quick=True,
+                           params=replace(Energy(), quick_dt_factors=(1.0,), quick_periods=3.0))
+    assert energy_failures(rows) != []
+
+
+@pytest.mark.parametrize("mutation", MUTATIONS)
+@slow[0]
+@slow[1]
+def test_cantilever_threshold_catches(mutation):
+    """nu = 0.3 is far enough from 0.25 here: the swap makes the beam 38 % stiffer in bending."""
+    rows = CASES["cantilever"](models=("stvk",), mutate=MUTATIONS[mutation], quick=True,
+                               params=replace(Cantilever(), rest_tolerance=1e-5))
+    assert cantilever_failures(rows) != []
