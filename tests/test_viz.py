@@ -86,6 +86,24 @@ def test_rendered_frames_show_the_object_and_it_falls(cube):
                                   last[:, int(0.8 * 320):int(0.84 * 320)][40:200])
 
 
+def test_a_scene_with_a_ground_shows_it_and_the_shadow_below_the_body(cube):
+    with open_results(cube) as results:
+        results.scene = {**results.scene, "ground": {"height": -0.3}}      # 0.3 m below the cube
+        renderer = Renderer(results, [0], size=(320, 240), view="oblique")
+        try:
+            image = renderer.image(0).astype(int)
+        finally:
+            renderer.close()
+    greyish = image.max(axis=2) - image.min(axis=2) < 25
+    grey = greyish & (image.mean(axis=2) > 160) & (image.mean(axis=2) < 235)        # the lit ground
+    shadow = greyish & (image.mean(axis=2) > 90) & (image.mean(axis=2) <= 160)      # darker ground
+    body = ~greyish                                                                 # coloured by the field
+    body[:, int(0.78 * 320):] = False
+    body[: int(0.12 * 240), :] = False
+    assert grey.mean() > 0.1 and shadow.mean() > 0.005 and body.mean() > 0.02
+    assert np.nonzero(shadow)[0].mean() > np.nonzero(body)[0].mean() + 20     # the shadow lies lower
+
+
 def test_von_mises_picture_is_hottest_at_the_clamped_root(bar):
     """Bending moment, hence von Mises stress, is largest at the clamp (x = 0, left in the xz view);
     viridis runs from dark purple (low: little green) to yellow (high: much green)."""

@@ -127,7 +127,7 @@ class Renderer:
     """
 
     def __init__(self, results, frames, field=None, size=(800, 600), view="oblique", cmap="viridis",
-                 show_edges=True):
+                 show_edges=True, shadows=True):
         pv = _pyvista()
         if view not in VIEWS:
             raise ResultsError(f"--view = '{view}': must be one of {', '.join(VIEWS)}")
@@ -148,10 +148,11 @@ class Renderer:
             lo, hi = min(lo, float(values.min())), max(hi, float(values.max()))
             points = results.frame_points(i)
             bounds_lo, bounds_hi = np.minimum(bounds_lo, points.min(0)), np.maximum(bounds_hi, points.max(0))
-        if not hi > lo:
-            pad = max(abs(hi) * 1e-3, 1e-12)
-            lo, hi = lo - pad, hi + pad
+        if not hi > lo:          # a uniform field: a small range around it (never below 0 if it is not)
+            pad = abs(hi) * 0.01 if hi != 0.0 else 1.0
+            lo, hi = (max(lo - pad, 0.0) if lo >= 0.0 else lo - pad), hi + pad
         self.clim = (lo, hi)
+        self.shadow = None
         self._store(self.frames[0])
 
         with _quiet_vtk_window_probe():
@@ -172,18 +173,21 @@ class Renderer:
         if ground is not None:
             height = float(ground.get("height", 0.0))
             centre = 0.5 * (bounds_lo + bounds_hi)
-            span = 1.4 * max(extent[0], extent[1], 0.5 * extent[2], 1e-3)
+            margin = max(extent.max(), 1e-3)
             plane = pv.Plane(center=(centre[0], centre[1], height), direction=(0, 0, 1),
-                             i_size=span + extent[0], j_size=span + extent[1])
+                             i_size=extent[0] + 2 * margin, j_size=extent[1] + 2 * margin)
             p.add_mesh(plane, color=(0.82, 0.82, 0.8), ambient=0.3, diffuse=0.7, specular=0.0)
+            if shadows:   # the surface flattened onto the ground, as under a light from straight above
+                self.shadow_height = height + 1e-3 * max(extent.max(), 1e-3)
+                self.shadow = self.surface.copy()
+                self._store_shadow()
+                p.add_mesh(self.shadow, color=(0.3, 0.3, 0.32), opacity=0.45, lighting=False)
             bounds_lo[2] = min(bounds_lo[2], height)
         direction, up = VIEWS[view]
         centre = 0.5 * (bounds_lo + bounds_hi)
         p.camera_position = [tuple(centre + np.asarray(direction)), tuple(centre), up]
         p.reset_camera(bounds=(bounds_lo[0], bounds_hi[0], bounds_lo[1], bounds_hi[1], bounds_lo[2], bounds_hi[2]))
-        # Keep the object clear of the colour bar on the right: shift the projection centre.
-        p.camera.SetWindowCenter(0.2, 0.0)
-        p.camera.zoom(0.95)
+        _fit_camera(p, bounds_lo, bounds_hi, size)
         if hasattr(p, "enable_anti_aliasing"):
             p.enable_anti_aliasing("ssaa")
 
@@ -198,6 +202,13 @@ class Renderer:
         else:
             self.surface.point_data["value"] = values
         self.surface.points = self.results.frame_points(i)
+        if self.shadow is not None:
+            self._store_shadow()
+
+    def _store_shadow(self):
+        flat = np.array(self.surface.points)
+        flat[:, 2] = self.shadow_height
+        self.shadow.points = flat
 
     def show(self, i):
         """Move the surface, its colours and the time stamp to frame ``i``."""
@@ -213,6 +224,34 @@ class Renderer:
 
     def close(self):
         self.plotter.close()
+
+
+# The part of the picture [fractions of width and height] the motion's bounding box fills: clear of
+# the time stamp (top left) and the colour bar (right).
+FIT_REGION = (0.05, 0.74, 0.06, 0.86)
+
+
+def _fit_camera(plotter, lo, hi, size):
+    """Zoom and shift the projection so that the box [lo, hi] fills ``FIT_REGION`` of the picture."""
+    renderer, camera = plotter.renderer, plotter.camera
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    width, height = size
+    x0, x1, y0, y1 = FIT_REGION
+    for _ in range(4):
+        pixels = []
+        for corner in corners:
+            renderer.SetWorldPoint(*corner, 1.0)
+            renderer.WorldToDisplay()
+            pixels.append(renderer.GetDisplayPoint()[:2])
+        pixels = np.array(pixels)
+        span = np.maximum(pixels.max(0) - pixels.min(0), 1e-6)
+        camera.Zoom(min((x1 - x0) * width / span[0], (y1 - y0) * height / span[1]))
+        pixels_centre = 0.5 * (pixels.max(0) + pixels.min(0))
+        wanted = np.array([0.5 * (x0 + x1) * width, 0.5 * (y0 + y1) * height])
+        cx, cy = camera.GetWindowCenter()
+        # The window centre moves the picture against it by half the view per unit.
+        camera.SetWindowCenter(cx - 2.0 * (wanted[0] - pixels_centre[0]) / width,
+                               cy - 2.0 * (wanted[1] - pixels_centre[1]) / height)
 
 
 def render(path, output, field=None, frame=None, frames=None, size=(800, 600), fps=None, view="oblique",
