@@ -1,5 +1,7 @@
 """``softsim plot``: energies and displacements of a run against time (PNG, matplotlib)."""
 
+from pathlib import Path
+
 import click
 
 from softsim.viz.plot import plot_history
@@ -21,5 +23,5 @@ def plot(results, output, vertices):
       softsim plot cantilever.h5 --vertex 0 --vertex 120
     """
     if output is None:
-        output = str(results).rsplit(".", 1)[0] + ".png"
+        output = str(Path(results).with_suffix(".png"))
     click.echo(f"wrote {plot_history(results, output, list(vertices))}")

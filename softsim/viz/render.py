@@ -80,7 +80,8 @@ def field_choices(results):
         if name not in FIELDS:          # energy/<term>: one number per frame
             continue
         shape = FIELDS[name].shape
-        names.append(name) if shape in ((), (3,)) else None
+        if shape in ((), (3,)):
+            names.append(name)
         if shape == (3,):
             names += [f"{name}_{a}" for a in AXES]
         if shape == (3, 3):
