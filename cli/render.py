@@ -43,7 +43,7 @@ def render(results, output, field, frame, frames, size, fps, view, cmap, no_edge
     Examples:
       softsim render cantilever.h5 -o cantilever.png --field von_mises
       softsim render bouncing_cube.h5 -o cube.gif --frames ::2 --size 480x360
-      softsim render twisted_bar.h5 -o bar.mp4 --field stress_xy
+      softsim render twisted_bar.h5 -o bar.mp4 --field speed --view xz
     """
     written = render_file(results, output, field=field, frame=frame, frames=frames, size=size, fps=fps, view=view,
                           cmap=cmap, show_edges=not no_edges)
