@@ -139,6 +139,15 @@ def test_render_cli_writes_png_and_gif(bar, tmp_path):
     assert not np.array_equal(frames[0], frames[-1])
 
 
+def test_render_cli_writes_mp4(bar, tmp_path):
+    import imageio.v3 as iio
+
+    mp4 = tmp_path / "bar.mp4"
+    run_cli("render", bar, "-o", mp4, "--size", "170x130", "--fps", "5")
+    frames = iio.imread(mp4, index=None, plugin="FFMPEG")
+    assert frames.shape[0] == 3 and frames.shape[1:3] == (128, 160)     # sides cut to multiples of 16
+
+
 def test_boundary_faces_of_a_cube_are_outward_and_cover_its_surface():
     from softsim.mesh.generate import structured_box
 
