@@ -147,7 +147,8 @@ def sweep(sweep_file, output_dir, workers, scheduler, shared_dir, force, dry_run
         columns = list(result.rows[0])
         x, y = (_column(name, columns, "--plot") for name in plot_columns[:2])
         lines = _column(plot_columns[2], columns, "--plot") if len(plot_columns) == 3 else None
-        image = plot_summary(result.summary_paths[0], output_dir / "summary.png", x, y, lines)
+        image = plot_summary(result.summary_paths[0], output_dir / "summary.png", x, y, lines,
+                             title=Path(sweep_file).name)
         log.info("plot: %s", image)
     counts = result.counts
     click.echo(f"{output_dir}: {len(result.rows)} runs, {counts['complete']} complete "

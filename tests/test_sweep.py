@@ -21,7 +21,8 @@ from softsim.errors import ConfigError, MissingDependencyError, SimulationError
 from softsim.mesh import build_mesh
 from softsim.simulation import prepare
 from softsim.sweep import expand_sweep, load_sweep, parse_sweep, plot_summary, run_sweep, tip_vertices
-from softsim.sweep.runner import _prepare_with_mesh, build_meshes, import_distributed, local_client, plan_runs
+from softsim.sweep.runner import (_prepare_with_mesh, build_meshes, import_distributed, local_client, plan_runs,
+                                  write_summary)
 from softsim.sweep.spec import format_value, run_name
 
 pytest.importorskip("distributed")
@@ -90,6 +91,10 @@ def mtimes(folder):
     ({"base": "bar.yaml", "parameters": {"material": [{}]}, "zip": {"material.density": [1e3]}},
      "material.density: overlaps material"),
     ({"base": "bar.yaml", "parameters": {"output.path": ["a.h5"]}}, "output.path: is set by the sweep"),
+    ({"base": "bar.yaml", "parameters": {"damping": [0.0, 1.0]}, "set": {"damping": 2.0}},
+     "damping: is given twice (parameters, zip, set)"),
+    ({"base": "bar.yaml", "parameters": {"damping": [0.0, 1.0]}, "set": {"time.durations": 2.0}},
+     "set.time.durations: is not a scene key; did you mean 'time.duration'?"),
     ({"base": "bar.yaml"}, "parameters: required: at least one scene key to vary"),
     ({"base": "missing.yaml", "parameters": {"material.density": [1e3]}}, "base scene file not found"),
     # An invalid combination: named by its run and the scene key.
@@ -118,7 +123,8 @@ def test_combinations_are_revalidated_copies(tmp_path):
                                   "parameters": {"material.youngs_modulus": {"start": 1e6, "stop": 1e8, "num": 3,
                                                                               "log": True},
                                                  "material.model": ["stvk", "neohookean"]},
-                                  "zip": {"mesh.element_size": [0.05, 0.1], "time.dt": [1e-4, 2e-4]}})
+                                  "zip": {"mesh.element_size": [0.05, 0.1], "time.dt": [1e-4, 2e-4]},
+                                  "set": {"time.duration": 0.002, "material.density": 1200.0}})
     sweep = load_sweep(path)
     base = yaml.safe_load(yaml.safe_dump(sweep.base))
     runs = expand_sweep(sweep, tmp_path / "out")
@@ -126,6 +132,7 @@ def test_combinations_are_revalidated_copies(tmp_path):
     assert sweep.base == base                       # never mutated
     assert [run.scene.material.youngs_modulus for run in runs[::4]] == [1e6, 1e7, 1e8]
     assert {(run.scene.mesh.element_size, run.scene.time.dt) for run in runs} == {(0.05, 1e-4), (0.1, 2e-4)}
+    assert {(run.scene.time.duration, run.scene.material.density) for run in runs} == {(0.002, 1200.0)}
     assert runs[3].name == "youngs_modulus=1e+06__model=neohookean__element_size=0.1__dt=0.0002"
     assert runs[3].path == (tmp_path / "out" / f"{runs[3].name}.h5").absolute()
     assert str(runs[3].path) == runs[3].scene.output.path
@@ -247,6 +254,18 @@ def test_ctrl_c_cancels_and_keeps_the_summary(tmp_path, client):
     assert rerun.skipped == statuses.count("complete") and not rerun.failed
 
 
+def test_a_run_refused_before_writing_is_reported_without_a_file(tmp_path, client):
+    sweep = {"base": "bar.yaml", "parameters": {"time.dt_policy": ["refuse", "substep"]},
+             "set": {"time.dt": 1.0e-3}}
+    out = tmp_path / "out"
+    out.mkdir()
+    result = run_sweep(expand_sweep(load_sweep(write_sweep(tmp_path, sweep)), out), out, client)
+    refused, split = result.rows
+    assert refused["status"] == "failed" and "dt_policy: refuse" in refused["status_reason"]
+    assert not (out / refused["file"]).exists()
+    assert split["status"] == "complete" and (out / split["file"]).is_file()
+
+
 def test_cli_on_an_existing_scheduler_with_a_shared_dir(tmp_path, client):
     sweep = {"base": "bar.yaml", "parameters": {"material.youngs_modulus": [1.0e6, 2.0e6]}}
     path = write_sweep(tmp_path, sweep)
@@ -269,6 +288,20 @@ def test_cli_local_cluster_exit_code_on_a_failed_run(tmp_path):
     assert result.exit_code == 1
     assert "2 runs, 1 complete (0 skipped, already complete), 1 failed" in result.output
     assert "run 2 (dt=0.01__youngs_modulus=1e+07) failed: the simulation blew up" in result.output
+
+
+def test_summary_csv_and_parquet_only_with_pyarrow(tmp_path, monkeypatch):
+    rows = [{"run": 1, "name": "E=1", "material.youngs_modulus": 1e6, "status": "complete", "tip_dz": -0.01},
+            {"run": 2, "name": "E=2", "material.youngs_modulus": 2e6, "status": "failed", "tip_dz": float("nan")}]
+    with monkeypatch.context() as patch:
+        patch.setitem(sys.modules, "pyarrow", None)
+        assert write_summary(rows, tmp_path) == [tmp_path / "summary.csv"]
+    assert [row["tip_dz"] for row in read_csv(tmp_path / "summary.csv")] == ["-0.01", ""]
+    parquet = pytest.importorskip("pyarrow.parquet")
+    paths = write_summary(rows, tmp_path)
+    table = parquet.read_table(paths[1])
+    assert table.column_names == list(rows[0]) and table.num_rows == 2
+    assert table.column("material.youngs_modulus").to_pylist() == [1e6, 2e6]
 
 
 def test_plot_summary(tmp_path):

@@ -20,6 +20,13 @@ METRIC_COLUMNS = ("status", "status_reason", "steps", "steps_done", "dt", "time"
                   "tip_x", "tip_y", "tip_z", "tip_displacement", "tip_dz")
 
 
+# Units of the summary's columns, for plot labels.
+UNITS = {"dt": "s", "time": "s", "wall_time_s": "s", "tet_steps_per_s": "1/s", "max_displacement": "m",
+         "final_kinetic_energy": "J", "tip_x": "m", "tip_y": "m", "tip_z": "m", "tip_displacement": "m",
+         "tip_dz": "m", "material.youngs_modulus": "Pa", "material.density": "kg/m^3", "time.dt": "s",
+         "mesh.element_size": "m", "time.duration": "s", "damping": "1/s"}
+
+
 def tip_vertices(points, fixed):
     """Indices of the "tip": the vertices farthest from the held ones (the far end face of a beam).
 

@@ -7,6 +7,7 @@ import math
 from pathlib import Path
 
 from ..errors import ConfigError, MissingDependencyError
+from .metrics import UNITS
 
 
 def read_summary(path):
@@ -21,12 +22,12 @@ def read_summary(path):
                 for row in csv.DictReader(stream)]
 
 
-def plot_summary(summary_path, image_path, x, y="tip_displacement", lines=None, y_scale=1.0,
-                 y_label=None, log_x=True, title=None):
-    """Plot column ``y`` (x ``y_scale``) of ``summary_path`` against column ``x``, one line per value of ``lines``.
+def plot_summary(summary_path, image_path, x, y="tip_displacement", lines=None, title=None):
+    """Plot column ``y`` of ``summary_path`` against column ``x``, one line per value of ``lines``.
 
-    Only complete runs are drawn; failed ones are listed in the legend as not drawn.  Needs
-    matplotlib (``pip install 'softsim[plot]'``).  Returns ``image_path``.
+    Only complete runs are drawn; failed ones are counted in the legend.  An axis whose values
+    are all positive and span a factor of 3 or more is logarithmic (a power law is a straight
+    line).  Needs matplotlib (``pip install 'softsim[plot]'``).  Returns ``image_path``.
     """
     try:
         import matplotlib
@@ -51,11 +52,13 @@ def plot_summary(summary_path, image_path, x, y="tip_displacement", lines=None, 
         label = f"{lines.rsplit('.', 1)[-1]} = {value:g}" if isinstance(value, float) else str(value or y)
         if failed:
             label += f" ({failed} failed, not drawn)"
-        axes.plot([row[x] for row in done], [row[y] * y_scale for row in done], "o-", label=label)
-    if log_x:
-        axes.set_xscale("log")
-    axes.set_xlabel(x)
-    axes.set_ylabel(y_label or y)
+        axes.plot([row[x] for row in done], [row[y] for row in done], "o-", label=label)
+    for column, set_scale in ((x, axes.set_xscale), (y, axes.set_yscale)):
+        values = [row[column] for row in rows if row["status"] == "complete" and isinstance(row[column], float)]
+        if values and min(values) > 0 and max(values) >= 3 * min(values):
+            set_scale("log")
+    axes.set_xlabel(_label(x))
+    axes.set_ylabel(_label(y))
     axes.grid(True, which="both", alpha=0.3)
     axes.legend()
     if title:
@@ -65,3 +68,8 @@ def plot_summary(summary_path, image_path, x, y="tip_displacement", lines=None, 
     figure.savefig(image_path)
     plt.close(figure)
     return Path(image_path)
+
+
+def _label(column):
+    unit = UNITS.get(column)
+    return f"{column} [{unit}]" if unit else column

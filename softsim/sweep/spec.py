@@ -9,6 +9,8 @@ A sweep file names a base scene and the scene keys to vary::
     zip:                             # optional: keys that vary together (equal-length lists)
       mesh.element_size: [0.04, 0.02]
       time.dt: [2.0e-5, 1.0e-5]
+    set:                             # optional: values every run uses (not in run names)
+      time.duration: 0.5
 
 ``load_sweep`` validates the file (one-line ``ConfigError`` naming the key, the value and what
 is allowed); ``expand_sweep`` makes every combination a full scene, validated by the scene
@@ -178,6 +180,19 @@ def _values_checker(where: str):
     return check
 
 
+def _check_fixed_values(value: Any) -> dict:
+    """``set``: dotted scene key -> one value, the same in every run."""
+    if value is None:
+        return {}
+    if not isinstance(value, Mapping):
+        fail("must be a mapping of dotted scene keys (time.duration) to one value each")
+    for key in value:
+        if not isinstance(key, str) or not key:
+            fail("keys must be dotted scene keys like time.duration", key=str(key), show_value=False)
+        check_scene_key(key)
+    return copy.deepcopy(dict(value))
+
+
 def _check_base(value: Any) -> Union[str, dict]:
     if isinstance(value, str) and value.strip():
         return value
@@ -187,7 +202,7 @@ def _check_base(value: Any) -> Union[str, dict]:
 
 
 class SweepFile(Section):
-    """A sweep: a base scene and the keys to vary (cartesian ``parameters``, parallel ``zip``)."""
+    """A sweep: a base scene, the keys to vary (cartesian ``parameters``, parallel ``zip``) and fixed ``set`` values."""
 
     unknown_word: typing.ClassVar[str] = "section"
 
@@ -197,6 +212,8 @@ class SweepFile(Section):
         default_factory=dict, description="dotted scene key -> list of values or {start, stop, num, log}")
     zip: Annotated[dict, BeforeValidator(_values_checker("zip"))] = Field(
         default_factory=dict, description="dotted scene key -> list of values; all lists of equal length")
+    set: Annotated[dict, BeforeValidator(_check_fixed_values)] = Field(
+        default_factory=dict, description="dotted scene key -> one value for every run (not in run names)")
 
     @model_validator(mode="after")
     def _check_varied_keys(self) -> "SweepFile":
@@ -210,10 +227,10 @@ class SweepFile(Section):
                 if length != lengths[first]:
                     fail(f"has {length} values but {first} has {lengths[first]}; zip lists vary together "
                          f"and must have equal length", key=f"zip.{key}", show_value=False)
-        keys = [*self.parameters, *self.zip]
+        keys = [*self.parameters, *self.zip, *self.set]
         for a, b in itertools.permutations(keys, 2):
             if a == b or b.startswith(a + "."):
-                what = "is in both parameters and zip" if a == b else f"overlaps {a}"
+                what = "is given twice (parameters, zip, set)" if a == b else f"overlaps {a}"
                 fail(f"{what}; each scene key may be varied once", key=b, show_value=False)
         return self
 
@@ -238,13 +255,15 @@ class Run:
 
 @dataclass(frozen=True)
 class Sweep:
-    """A validated sweep file: the raw base scene, the folder it is relative to, and the keys."""
+    """A validated sweep file: the raw base scene, the folder it is relative to, the swept keys and
+    ``fixed`` (the file's ``set``: values every run uses)."""
 
     source: str
     base: dict
     base_dir: Path
     parameters: dict
     zip: dict
+    fixed: dict
 
     @property
     def keys(self) -> tuple[str, ...]:
@@ -276,7 +295,7 @@ def _read(path: Path, what: str) -> Any:
 def parse_sweep(data: Any, base_dir: Union[str, Path] = ".", source: str = "sweep") -> Sweep:
     """Validate a raw sweep mapping; a base scene file is read relative to ``base_dir``."""
     if not isinstance(data, Mapping):
-        raise ConfigError(f"{source}: a sweep file must be a mapping with keys base, parameters, zip")
+        raise ConfigError(f"{source}: a sweep file must be a mapping with keys base, parameters, zip, set")
     try:
         sweep_file = SweepFile.model_validate(data)
     except ValidationError as error:
@@ -291,7 +310,7 @@ def parse_sweep(data: Any, base_dir: Union[str, Path] = ".", source: str = "swee
     else:
         base = sweep_file.base
     return Sweep(source=source, base=dict(base), base_dir=base_dir, parameters=sweep_file.parameters,
-                 zip=sweep_file.zip)
+                 zip=sweep_file.zip, fixed=sweep_file.set)
 
 
 def load_sweep(path: Union[str, Path]) -> Sweep:
@@ -385,7 +404,7 @@ def expand_sweep(sweep: Sweep, output_dir: Union[str, Path]) -> list[Run]:
                               f"give them values that differ in their first 17 digits")
         names[name] = index
         data = sweep.base
-        for key, value in point.items():
+        for key, value in [*sweep.fixed.items(), *point.items()]:
             data = _with_value(data, key.split("."), value)
         data = _with_value(data, ["output", "path"], str(output_dir / f"{name}.h5"))
         try:
