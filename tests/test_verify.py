@@ -18,7 +18,7 @@ import pytest
 
 from softsim.verify import references as ref
 from softsim.verify.cases import CASES, AxialVibration, Cantilever, Energy, Patch, Traction
-from softsim.verify.driver import with_lame
+from softsim.verify.driver import with_lame, with_rest_state
 from softsim.verify.report import COLUMNS, pareto_front, verify_report
 
 ROTATION_INVARIANT = ("stvk", "corotated", "neohookean")
@@ -54,6 +54,8 @@ def cantilever_failures(rows):
     for model in {r.model for r in rows}:
         ladder = sorted(rows_of(rows, "cantilever", "tip deflection", model), key=lambda r: -r.refinement)
         w = [r.value for r in ladder]
+        if len(w) < 3:
+            continue      # the quick run gives costly models fewer rungs; the check needs three
         if any(b <= a for a, b in zip(w, w[1:])) or max(w) > 1.03 * w_t:
             failures.append(f"{model}: deflections {w} not increasing below 1.03 x {w_t:.4g}")
         limit, _, _ = ref.richardson_limit([r.refinement for r in ladder], w)
@@ -135,11 +137,13 @@ def test_quick_report_writes_csv_plots_and_summary(report):
         assert f"verify_{name}.png" in text
     assert "1 %:" in text and "0.1 %:" in text
     assert {r.model for r in report.rows} == {"linear", "stvk", "corotated", "neohookean"}
-    assert all(r.precision == "float64" and r.steps > 0 or r.quantity == "interior force at AX+b"
-               for r in report.rows)
+    assert all(r.precision == "float64" and r.wall_time_s > 0.0 for r in report.rows)
+    assert all(r.steps > 0 for r in report.rows if r.quantity != "interior force at AX+b")
 
 
 def test_quick_cantilever_converges_towards_the_3d_beam(report):
+    for model in ("linear", "stvk", "neohookean"):
+        assert len(rows_of(report.rows, "cantilever", "tip deflection", model)) >= 3
     assert cantilever_failures(report.rows) == []
 
 
@@ -221,7 +225,7 @@ def lame_swapped(model):
 
 
 def volumes_scaled(model):
-    return replace(model, rest_volume=0.8 * model.rest_volume)
+    return with_rest_state(model, rest_volume=0.8 * model.rest_volume)
 
 
 MUTATIONS = {"mu doubled": mu_doubled, "lambda and mu swapped": lame_swapped, "rest volumes x 0.8": volumes_scaled}
@@ -245,11 +249,11 @@ def test_axial_threshold_catches(mutation):
 
 def tets_perturbed(model):
     rng = np.random.default_rng(1)
-    return replace(model, rest_volume=model.rest_volume * rng.uniform(0.9, 1.1, model.tet_count))
+    return with_rest_state(model, rest_volume=model.rest_volume * rng.uniform(0.9, 1.1, model.tet_count))
 
 
 def dm_inv_transposed(model):
-    return replace(model, Dm_inv=np.ascontiguousarray(np.transpose(model.Dm_inv, (0, 2, 1))))
+    return with_rest_state(model, Dm_inv=np.transpose(model.Dm_inv, (0, 2, 1)))
 
 
 @pytest.mark.parametrize("mutation", [tets_perturbed, dm_inv_transposed])

@@ -14,6 +14,7 @@ ladders whose element size halves exactly; the patch test uses an unstructured g
 """
 
 import math
+import time
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -27,16 +28,18 @@ from .driver import Run, face_mask, tet_deformation_gradients, unique_edges
 MODELS = tuple(MODEL_IDS)
 # Half-width [m] of the selection boxes around a face.
 BOX = 1e-6
-# Models whose step costs far more per tet (corotated: an SVD per tet, measured ~35x stvk's cost
-# on near-rest states).  In quick mode their ladders keep only the first ``quick_costly_rungs``
-# rungs of each case (0: the run is skipped); the full run gives them every rung.
+# Models whose step costs far more per tet (corotated: an SVD per tet, measured 30-40x the cost of
+# stvk on near-rest states).  Their ladders keep only the first ``costly_rungs`` rungs of a case
+# (``quick_costly_rungs`` in quick mode; 0: the run is skipped).
 COSTLY_MODELS = ("corotated",)
 
 
-def _rungs(ladder, quick, model, keep):
-    """``ladder``, cut to its first ``keep`` rungs for a costly model in quick mode."""
-    if quick and model in COSTLY_MODELS:
-        return tuple(ladder)[:keep]
+def _rungs(ladder, quick, model, p, offset=0):
+    """``ladder``, cut for a costly model to the case's ``quick_costly_rungs`` / ``costly_rungs``
+    (plus ``offset``)."""
+    if model in COSTLY_MODELS:
+        keep = (p.quick_costly_rungs if quick else p.costly_rungs) + offset
+        return tuple(ladder)[:max(keep, 0)]
     return tuple(ladder)
 
 
@@ -151,6 +154,7 @@ class Cantilever:
     quick_divisions: tuple = (2, 3, 4)
     # Divisions run only for these models (the finest rung is the costly one).
     finest_models: tuple = ("stvk",)
+    costly_rungs: int = 2
     quick_costly_rungs: int = 0
     rest_tolerance: float = 2e-6     # stop when the tip moves less than this fraction per 1/omega_1
 
@@ -168,7 +172,7 @@ def run_cantilever(p=Cantilever(), quick=False, models=MODELS, mutate=None, prog
     for model in models:
         runs = []
         mine = divisions if quick or model in p.finest_models else divisions[:-1]
-        mine = _rungs(mine, quick, model, p.quick_costly_rungs)
+        mine = _rungs(mine, quick, model, p)
         for n in mine:
             scene = _structured_box((L, t, t), t / n, _material(model, p), gravity=[0.0, 0.0, -p.gravity],
                                     damping=2.0 * omega, fixed=[_clamp()])
@@ -242,6 +246,7 @@ class AxialVibration:
     dt_divisions: int = 20
     dt_factors: tuple = (1.0, 0.5, 0.25, 0.125)
     quick_dt_factors: tuple = (1.0, 0.5, 0.25)
+    costly_rungs: int = 3
     quick_costly_rungs: int = 2
 
 
@@ -303,12 +308,12 @@ def run_axial_vibration(p=AxialVibration(), quick=False, models=MODELS, mutate=N
             done[(n, factor)] = (run, fit_period(times, values, period))
             return done[(n, factor)]
 
-        for n in _rungs(divisions, quick, model, p.quick_costly_rungs):
+        for n in _rungs(divisions, quick, model, p):
             run, value = measure(n, 1.0)
             rows.append(_row(case, "period", run, "element_size", L / n, value, period, "4L/sqrt(E/rho)",
                              "nu = 0: the continuous 3D bar is the 1D bar"))
             _report(progress, rows[-1])
-        for factor in _rungs(factors, quick, model, p.quick_costly_rungs - 1):
+        for factor in _rungs(factors, quick, model, p, -1):
             run, value = measure(p.dt_divisions, factor)
             rows.append(_row(case, "period", run, "dt", run.dt, value, period, "4L/sqrt(E/rho)",
                              f"dt = {factor:g} x auto on the L/{p.dt_divisions} mesh"))
@@ -341,6 +346,7 @@ class Traction:
     element_sizes: tuple = (0.1, 0.05)
     quick_element_sizes: tuple = (0.1, 0.05)
     size_load_ratio: float = 1e-3
+    costly_rungs: int = 3
     quick_costly_rungs: int = 1
     rest_tolerance: float = 1e-9
 
@@ -393,9 +399,9 @@ def run_traction(p=Traction(), quick=False, models=MODELS, mutate=None, progress
             rows.append(_row(case, "contraction", run, ladder, refinement, contraction, c_ref, "nu sigma w / E",
                              f"{note}; sigma/E = {load:g}{extra}", uncertainty=finite))
 
-        for load in _rungs(loads, quick, model, p.quick_costly_rungs):
+        for load in _rungs(loads, quick, model, p):
             add("load", load, p.element_size, load)
-        for h in _rungs(sizes, quick, model, p.quick_costly_rungs):
+        for h in _rungs(sizes, quick, model, p):
             add("element_size", h, h, p.size_load_ratio)
     return rows
 
@@ -426,7 +432,8 @@ class RigidMotion:
     spin_axis: tuple = (0.36, 0.48, 0.8)
     turns: float = 1.0
     samples_per_turn: int = 64
-    quick_costly_rungs: int = 0      # the spin (the fall is cheap: every model runs it)
+    costly_rungs: int = 1            # the spin (the fall is cheap: every model runs it)
+    quick_costly_rungs: int = 0
 
 
 def run_rigid_motion(p=RigidMotion(), quick=False, models=MODELS, mutate=None, progress=None):
@@ -458,7 +465,7 @@ def run_rigid_motion(p=RigidMotion(), quick=False, models=MODELS, mutate=None, p
                              f"symplectic Euler: dt / t = {run.dt / run.time:.3g}"))
             _report(progress, rows[-1])
 
-        if not _rungs((1,), quick, model, p.quick_costly_rungs):
+        if not _rungs((1,), quick, model, p):
             continue
         scene = _structured_box((a, a, a), p.spin_element_size, _material(model, p),
                                 angular_velocity=[float(v) for v in omega * axis])
@@ -550,13 +557,17 @@ def run_patch(p=Patch(), quick=False, models=MODELS, mutate=None, progress=None)
             run = Run(scene, mutate=mutate)
             m = run.model
             free = ~m.held.any(axis=1)
+            started = time.perf_counter()
             f = elastic_forces(run.state.x, m.tets, m.Dm_inv, m.rest_volume, m.material_id, m.lam, m.mu,
                                m.csr_offsets, m.csr_slots)
+            evaluation = time.perf_counter() - started
             scale = float(np.abs(f[~free]).max())
             residual = float(np.abs(f[free]).max()) / scale
-            rows.append(_row(case, "interior force at AX+b", run, "element_size", h, residual, 0.0,
-                             "max|f interior| / max|f boundary|",
-                             f"{int(free.sum())} interior of {m.node_count} vertices", error=residual))
+            row = _row(case, "interior force at AX+b", run, "element_size", h, residual, 0.0,
+                       "max|f interior| / max|f boundary|",
+                       f"{int(free.sum())} interior of {m.node_count} vertices; wall time: one force evaluation",
+                       error=residual)
+            rows.append(replace(row, wall_time_s=evaluation))
             _report(progress, rows[-1])
 
             run.restart_from(m.rest_points)
@@ -603,6 +614,7 @@ class Energy:
     samples_per_period: int = 32
     dt_factors: tuple = (1.0, 0.5, 0.25, 0.125)
     quick_dt_factors: tuple = (1.0, 0.5, 0.25)
+    costly_rungs: int = 2
     quick_costly_rungs: int = 1
 
 
@@ -616,7 +628,7 @@ def run_energy(p=Energy(), quick=False, models=MODELS, mutate=None, progress=Non
     factors = p.quick_dt_factors if quick else p.dt_factors
     rows = []
     for model in models:
-        for factor in _rungs(factors, quick, model, p.quick_costly_rungs):
+        for factor in _rungs(factors, quick, model, p):
             scene = _structured_box((L, t, t), p.element_size, _material(model, p), gravity=[0.0, 0.0, -p.gravity],
                                     fixed=[_clamp()])
             run = Run(scene, dt_factor=factor, mutate=mutate)

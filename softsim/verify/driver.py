@@ -23,6 +23,15 @@ from ..model import State, initial_state
 from ..simulation import prepare, stable_dt_estimate, step
 
 
+def _work_buffer(model):
+    """The scratch buffer ``simulation.step`` takes for ``model`` (as ``simulation.simulate`` allocates it)."""
+    try:
+        from ..integrators.symplectic_euler import work_buffer
+    except ImportError:          # the per-tet step: one (tet, corner) force buffer
+        return np.empty((model.tet_count, 4, 3))
+    return work_buffer(model)
+
+
 class Run:
     """A prepared verification scene and its state, advanced in timed chunks.
 
@@ -44,7 +53,7 @@ class Run:
         self.dt = dt_factor * AUTO_SAFETY * stable_dt_estimate(model)
         self.damping = self.scene.damping
         self.state = initial_state(self.scene, model)
-        self._corner_forces = np.empty((model.tet_count, 4, 3))
+        self._corner_forces = _work_buffer(model)
         self.steps = 0
         self.wall_time_s = 0.0
         self._warm_up()
@@ -105,6 +114,21 @@ class Run:
 def with_lame(model, lam=None, mu=None):
     """``model`` with other Lame parameters (for mutation tests and what-ifs)."""
     return replace(model, lam=model.lam if lam is None else float(lam), mu=model.mu if mu is None else float(mu))
+
+
+def with_rest_state(model, Dm_inv=None, rest_volume=None):
+    """``model`` with other rest shape matrices ``Dm_inv`` (m, 3, 3) [1/m] or rest volumes (m,)
+    [m^3] in its force computation (masses unchanged), for mutation tests; the step's blocked copy
+    of the rest state (``model.blocks``), where the model has one, is rebuilt from them."""
+    Dm_inv = model.Dm_inv if Dm_inv is None else np.ascontiguousarray(Dm_inv, dtype=np.float64)
+    rest_volume = model.rest_volume if rest_volume is None else np.ascontiguousarray(rest_volume, dtype=np.float64)
+    changes = {"Dm_inv": Dm_inv, "rest_volume": rest_volume}
+    if getattr(model, "blocks", None) is not None:
+        from ..kernels.blocked import build_block_layout
+
+        changes["blocks"] = build_block_layout(model.tets, Dm_inv, rest_volume, model.node_count,
+                                               scatter=model.blocks.scatter)
+    return replace(model, **changes)
 
 
 def tet_deformation_gradients(rest_points, x, tets):
