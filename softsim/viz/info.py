@@ -75,7 +75,7 @@ def format_summary(summary):
         ("scene", f"{scene['mesh']} mesh, {material}" + (", ground" if scene["ground"] else "")),
         ("mesh", f"{summary['tets']} tets, {summary['vertices']} vertices"),
         ("status", status),
-        ("steps", f"{summary['steps']} of dt {summary['dt']:.4g} s, wall time {summary['wall_time_s']:.3g} s"),
+        ("steps", f"{summary['steps']} of dt = {summary['dt']:.4g} s, wall time {summary['wall_time_s']:.3g} s"),
         ("frames", f"{summary['frames']}, simulated time reached {summary['time']:.6g} s{duration}"),
     ]
     lines = [f"{key:<8} {value}" for key, value in rows]
