@@ -27,7 +27,7 @@ def displacement_history(results, vertices=None):
     the largest over all vertices when ``vertices`` is empty."""
     n = results.node_count
     for v in vertices or ():
-        if not -n <= v < n:
+        if not 0 <= v < n:
             raise ResultsError(f"--vertex {v}: out of range; the mesh has {n} vertices (0 to {n - 1})")
     magnitudes = [np.linalg.norm(results.field("displacement", i), axis=1) for i in range(results.frame_count)]
     magnitudes = np.array(magnitudes)                       # (k, n)
