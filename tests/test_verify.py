@@ -279,3 +279,52 @@ def test_cantilever_threshold_catches(mutation):
     rows = CASES["cantilever"](models=("stvk",), mutate=MUTATIONS[mutation], quick=True,
                                params=replace(Cantilever(), rest_tolerance=1e-5))
     assert cantilever_failures(rows) != []
+
+
+# ---------------------------------------------------------------------------------------------
+# Front door
+
+
+def test_cli_verify_runs_a_case_and_prints_the_table(tmp_path):
+    from click.testing import CliRunner
+
+    from cli.main import cli
+
+    out = tmp_path / "report"
+    result = CliRunner().invoke(cli, ["verify", "--quick", "--case", "traction", "--model", "linear", "--threads", "1",
+                                      "-o", str(out)])
+    assert result.exit_code == 0, result.output
+    assert "traction" in result.output and "elongation" in result.output and "1 %:" in result.output
+    assert (out / "verify.csv").is_file() and (out / "verify.md").is_file() and (out / "verify_traction.png").is_file()
+
+
+def test_cli_verify_refuses_an_unknown_case_in_one_line(tmp_path):
+    from click.testing import CliRunner
+
+    from cli.main import cli
+
+    result = CliRunner().invoke(cli, ["verify", "--case", "nonsense", "-o", str(tmp_path)])
+    assert result.exit_code != 0 and "nonsense" in result.output
+
+
+def test_without_matplotlib_the_tables_are_written_and_the_extra_named(tmp_path, monkeypatch):
+    from softsim.errors import MissingDependencyError
+    from softsim.verify import report as report_module
+
+    def missing():
+        raise MissingDependencyError("no matplotlib")
+
+    monkeypatch.setattr(report_module, "_matplotlib", missing)
+    result = verify_report(tmp_path, quick=True, cases=["rigid-motion"], models=["stvk"], threads=1)
+    assert result.plot_paths == {} and 'pip install "softsim[plot]"' in result.plot_note
+    assert result.csv_path.is_file() and "softsim[plot]" in result.summary_path.read_text()
+
+
+def test_a_report_re_renders_from_its_table(report, tmp_path):
+    from softsim.verify.report import read_csv, write_report
+
+    rows = read_csv(report.csv_path)
+    assert len(rows) == len(report.rows)
+    again = write_report(tmp_path, rows, quick=True, plot=False)
+    assert again.csv_path.read_text() == report.csv_path.read_text()
+    assert again.budgets == report.budgets

@@ -24,7 +24,7 @@ from pathlib import Path
 
 from ..errors import ConfigError, MissingDependencyError
 from . import references as ref
-from .cases import CASES, MODELS
+from .cases import CASES, MODELS, VerifyRow
 
 COLUMNS = ("case", "quantity", "model", "precision", "ladder", "refinement", "element_size_m", "tets", "dt_s",
            "steps", "wall_time_s", "value", "reference_value", "error", "reference", "reference_uncertainty",
@@ -148,8 +148,26 @@ def budget_answers(rows, case_name, quantity, budgets=BUDGETS):
             lines.append(f"{label}: cannot be told: the reference is itself only good to {best:.1e} relative")
         else:
             best = min(mine, key=lambda r: r.error)
-            lines.append(f"{label}: not reached; the most accurate run was {_describe(best)}")
+            lines.append(f"{label}: not reached; the most accurate run was {_describe(best)}"
+                         + _extrapolated_cost(mine, best, budget))
     return lines
+
+
+def _extrapolated_cost(rows, best, budget):
+    """``; extrapolating ...`` for an element-size ladder: the element size that the fitted order
+    of the last three rungs predicts for ``budget``, and its cost with tets ~ h^-3 and steps ~ h^-1
+    (dt: auto); empty where there is no such ladder or no convergence."""
+    if best.ladder != "element_size":
+        return ""
+    group = sorted((r for r in rows if r.model == best.model and r.ladder == "element_size"),
+                   key=lambda r: -r.refinement)[-3:]
+    order = ref.fitted_order([r.refinement for r in group], [r.error for r in group])
+    if order is None or order < 0.3 or len(group) < 2:
+        return ""
+    h = best.element_size * (budget / best.error) ** (1.0 / order)
+    scale = (best.element_size / h) ** 4
+    return (f"; extrapolating its order {order:.2f}: element size ~{h:.2g} m, ~{best.tets * scale ** 0.75:.2g} tets, "
+            f"~{best.wall_time_s * scale:.2g} s")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -181,7 +199,7 @@ def plot_case(case, rows, path):
     if case.primary in quantities:
         quantities.remove(case.primary)
         quantities.insert(0, case.primary)
-    figure = Figure(figsize=(5.6 * len(quantities), 4.8), layout="constrained")
+    figure = Figure(figsize=(7.6 * len(quantities), 4.8), layout="constrained")
     FigureCanvasAgg(figure)
     axes = figure.subplots(1, len(quantities), squeeze=False)[0]
     for ax, quantity in zip(axes, quantities):
@@ -202,6 +220,16 @@ def plot_case(case, rows, path):
                 drawstyle="steps-post", zorder=1)
         ax.plot([times[i] for i in front], [errors[i] for i in front], ls="none", marker="o", ms=11, mfc="none",
                 mec="k", mew=1.0, label="Pareto front", zorder=3)
+        shown = set()
+        for i in front:
+            r = mine[i]
+            text = {"element_size": f"{r.tets} tets", "dt": f"dt {r.dt:.2g} s",
+                    "load": f"sigma/E {r.refinement:g}"}.get(r.ladder, "")
+            if not text or text in shown:
+                continue
+            shown.add(text)
+            ax.annotate(text, (times[i], errors[i]), xytext=(6, -10), textcoords="offset points", fontsize=6,
+                        color="0.25")
         for budget in BUDGETS:
             if min(errors) < budget * 30 and max(errors) > budget / 30:
                 ax.axhline(budget, color="0.6", lw=0.8, ls=":")
@@ -210,12 +238,16 @@ def plot_case(case, rows, path):
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.xaxis.set_minor_formatter(NullFormatter())
+        low, high = min(errors), max(errors)
+        if high < 30.0 * low:             # at least three decades: round-off noise must not look like a trend
+            centre = math.sqrt(low * high)
+            ax.set_ylim(centre / 30.0, centre * 30.0)
         ax.grid(True, which="major", alpha=0.3)
         ax.set_xlabel("wall time of the time steps [s]")
         references = sorted({r.reference for r in mine})
-        ax.set_ylabel(f"relative error of {quantity}")
+        ax.set_ylabel(f"error: {quantity} (relative)")
         ax.set_title(f"{quantity}\n(against {'; '.join(references)})", fontsize=9)
-        ax.legend(fontsize=7, loc="best")
+        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
     figure.suptitle(case.title, fontsize=11)
     figure.savefig(path, dpi=110)
     return Path(path)
@@ -290,14 +322,14 @@ CASE_NOTES = {
 }
 
 
-def write_summary(path, rows, quick, budgets, plot_paths, plot_note, threads, loads, wall_time_s, case_names):
+def write_summary(path, rows, quick, budgets, plot_paths, plot_note, machine, wall_time_s, case_names):
     """Write ``verify.md``."""
     lines = [
         "# softsim verify: error against run time",
         "",
         f"{'Quick' if quick else 'Full'} run, {len(rows)} rows, {wall_time_s:.0f} s in all. Table: `verify.csv`. "
         f"Wall times count the time steps only (not meshing, JIT compilation or measurements), on "
-        f"{_machine_line(threads, loads)}; other work on the machine inflates them.",
+        f"{machine}; other work on the machine inflates them.",
         "",
         "Errors are relative: |computed - reference| / |reference|; `order` is the slope of log error "
         "against log h (element size), log dt or log (sigma / E) over the rungs of one ladder. Linear "
@@ -318,6 +350,17 @@ def write_summary(path, rows, quick, budgets, plot_paths, plot_note, threads, lo
         orders = _order_lines(rows, name)
         if orders:
             lines += orders + [""]
+        finest = {}
+        for r in mine:
+            if r.ladder != "-" and r.quantity == case.primary:
+                best = finest.get(r.model)
+                if best is None or (r.element_size, r.dt) < (best.element_size, best.dt):
+                    finest[r.model] = r
+        if finest:
+            lines += ["| model | finest run of the " + case.primary + " | error | note |", "|---|---|---|---|"]
+            lines += [f"| {r.model} | {r.tets} tets, dt {r.dt:.3g} s, {r.steps} steps, {r.wall_time_s:.3g} s | "
+                      f"{r.error:.2e} | {r.note} |" for r in finest.values()]
+            lines.append("")
         singles = [r for r in mine if r.ladder == "-"]
         if singles:
             lines += ["| quantity | model | error | reference | note |", "|---|---|---|---|---|"]
@@ -352,37 +395,68 @@ def verify_report(out_dir, quick=False, cases=None, models=MODELS, plot=True, pr
     bad = [m for m in models if m not in MODELS]
     if bad:
         raise ConfigError(f"unknown material model {', '.join(bad)} (known: {', '.join(MODELS)})")
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
     import numba
 
     if threads is not None:
         if not 1 <= threads <= numba.config.NUMBA_NUM_THREADS:
             raise ConfigError(f"threads = {threads}: must be between 1 and {numba.config.NUMBA_NUM_THREADS}")
         numba.set_num_threads(threads)
-    load_start = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    load_start = _load()
     rows = []
     for name in names:
         rows += CASES[name](quick=quick, models=models, mutate=mutate, progress=progress)
-    load_end = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    machine = _machine_line(numba.get_num_threads(), (load_start, _load()))
+    return write_report(out_dir, rows, quick, plot=plot, machine=machine, started=started)
+
+
+def _load():
+    return os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+
+
+def write_report(out_dir, rows, quick, plot=True, machine="this machine", started=None):
+    """Write ``verify.csv``, the plots and ``verify.md`` of ``rows`` into ``out_dir``; a ``VerifyReport``.
+
+    Also re-renders a report from its table: ``write_report(dir, read_csv(dir / "verify.csv"), quick)``.
+    machine: the line saying where the wall times were measured; started: ``perf_counter()`` at the
+    start of the runs (for the total time; None: 0).
+    """
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    names = [name for name in CASES if any(r.case == name for r in rows)]
     csv_path = write_csv(rows, out_dir / "verify.csv")
     budgets = {name: budget_answers(rows, name, CASES[name].primary) for name in names}
     plot_paths, plot_note = {}, None
     if plot:
         try:
             for name in names:
-                mine = [r for r in rows if r.case == name]
-                if mine:
-                    plot_paths[name] = plot_case(CASES[name], mine, out_dir / f"verify_{name}.png")
+                plot_paths[name] = plot_case(CASES[name], [r for r in rows if r.case == name],
+                                             out_dir / f"verify_{name}.png")
         except MissingDependencyError:
             plot_paths = {}
             plot_note = f"No plots: matplotlib is not installed ({PLOT_EXTRA} adds them)."
-    wall = _time.perf_counter() - started
-    summary = write_summary(out_dir / "verify.md", rows, quick, budgets, plot_paths, plot_note,
-                            numba.get_num_threads(), (load_start, load_end), wall, names)
+    wall = _time.perf_counter() - started if started is not None else sum(r.wall_time_s for r in rows)
+    summary = write_summary(out_dir / "verify.md", rows, quick, budgets, plot_paths, plot_note, machine, wall, names)
     return VerifyReport(out_dir=out_dir, quick=quick, rows=rows, csv_path=csv_path, summary_path=summary,
                         plot_paths=plot_paths, plot_note=plot_note, budgets=budgets, wall_time_s=wall)
 
 
+def read_csv(path):
+    """The ``VerifyRow``s of a ``verify.csv``."""
+    def number(text):
+        return float(text) if text != "" else None
+
+    rows = []
+    with open(path, newline="") as stream:
+        for d in csv.DictReader(stream):
+            rows.append(VerifyRow(
+                case=d["case"], quantity=d["quantity"], model=d["model"], precision=d["precision"],
+                ladder=d["ladder"], refinement=float(d["refinement"]), element_size=float(d["element_size_m"]),
+                tets=int(d["tets"]), dt=float(d["dt_s"]), steps=int(d["steps"]), wall_time_s=float(d["wall_time_s"]),
+                value=float(d["value"]), reference_value=float(d["reference_value"]), error=float(d["error"]),
+                reference=d["reference"], order=number(d["order"]), order_self=number(d["order_self"]),
+                note=d["note"], reference_uncertainty=float(d["reference_uncertainty"])))
+    return rows
+
+
 __all__ = ["BUDGETS", "COLUMNS", "VerifyReport", "budget_answers", "fitted_orders", "format_table", "pareto_front",
-           "plot_case", "verify_report", "write_csv", "write_summary"]
+           "plot_case", "read_csv", "verify_report", "write_csv", "write_report", "write_summary"]
