@@ -1,0 +1,259 @@
+"""The sections of ``python -m benchmarks``; each returns rows (dicts) for the results table.
+
+Every rate is the median over rounds of interleaved timings (``timing.interleaved``), in million
+tet-steps per second (tets x steps / wall seconds, JIT compilation excluded); ratios are medians of
+per-round ratios.  Row keys: section, case, tets, runner, threads, rate (M tet-steps/s), ratio,
+ratio_to (what the ratio divides by), note.
+"""
+
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+
+import numba
+import numpy as np
+
+from . import peers
+from .beam import Softsim, prepared_beam, system_arrays
+from .stream import BYTES_PER_TET_STEP, Stream
+from .timing import interleaved, median_ratio
+
+MODELS = ("linear", "stvk", "corotated", "neohookean")
+CHECK_STEPS = 1000
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def row(section, case, tets=None, runner="softsim", threads=None, rate=None, ratio=None, ratio_to="", note=""):
+    return dict(section=section, case=case, tets=tets, runner=runner, threads=threads,
+                rate=None if rate is None else round(rate, 2), ratio=None if ratio is None else round(ratio, 3),
+                ratio_to=ratio_to, note=note)
+
+
+def log(text):
+    print(text, file=sys.stderr, flush=True)
+
+
+# ---------------------------------------------------------------------------------------------
+
+
+def peer_check(tets, threads):
+    """Rows: max |x_peer - x_softsim| [m] after ``CHECK_STEPS`` steps, relative to the displacement."""
+    prepared = prepared_beam(tets)
+    sim = Softsim(prepared)
+    arrays = system_arrays(prepared)
+    sim.run(CHECK_STEPS)
+    reference = sim.positions()
+    displacement = float(np.abs(reference - prepared.model.rest_points).max())
+    rows = []
+    for name, reason in peers.available().items():
+        if reason is not None:
+            rows.append(row("check", "same answer", sim.tet_count, name, note=f"skipped: {reason}"))
+            continue
+        peer = peers.Taichi(arrays, threads) if name == "taichi" else peers.Warp(arrays)
+        peer.run(CHECK_STEPS)
+        diff = float(np.abs(peer.positions() - reference).max())
+        rows.append(row("check", "same answer", sim.tet_count, name, ratio=diff / displacement, ratio_to="max displacement",
+                        note=f"max |x - x_softsim| = {diff:.2e} m after {CHECK_STEPS} steps, float64 "
+                             f"(displacement {displacement:.2e} m)"))
+        log(f"  check {name}: {diff:.2e} m of {displacement:.2e} m")
+    return rows
+
+
+def throughput(sizes, seconds, repeats, threads, stream):
+    """softsim (and both of its scatters) against Taichi, Warp and the STREAM bound, per size."""
+    rows = []
+    available = peers.available()
+    for name, reason in available.items():
+        if reason is not None:
+            rows.append(row("throughput", "peer", None, name, note=f"skipped: {reason}"))
+    for target in sizes:
+        prepared = prepared_beam(target)
+        runners = {"softsim": Softsim(prepared)}
+        other = "csr" if runners["softsim"].scatter == "colour" else "colour"
+        runners[f"softsim ({other})"] = Softsim(prepared, scatter=other)
+        arrays = system_arrays(prepared)
+        if available["taichi"] is None:
+            runners["taichi"] = peers.Taichi(arrays, threads)
+        if available["warp"] is None:
+            runners["warp"] = peers.Warp(arrays)
+        runners["bound"] = lambda: stream.bound(2) / 1e6
+        rates = interleaved(runners, seconds, repeats)
+        tets = runners["softsim"].tet_count
+        med = {k: statistics.median(v) for k, v in rates.items()}
+        log(f"  {tets:>9} tets: " + ", ".join(f"{k} {v:.1f}" for k, v in med.items()))
+        scatter = runners["softsim"].scatter
+        rows.append(row("throughput", "bound", tets, "stream triad / 272 B", threads, med["bound"],
+                        note=f"{med['bound'] * BYTES_PER_TET_STEP / 1e3:.1f} GB/s"))
+        rows.append(row("throughput", "softsim", tets, "softsim", threads, med["softsim"],
+                        median_ratio(rates, "softsim", "bound"), "bound",
+                        note=f"scatter: {scatter}; {1e3 / med['softsim']:.1f} ns per tet-step"))
+        rows.append(row("throughput", f"scatter {other}", tets, f"softsim ({other})", threads,
+                        med[f"softsim ({other})"], median_ratio(rates, f"softsim ({other})", "softsim"), "softsim"))
+        for peer, peer_threads in (("taichi", threads), ("warp", 1)):
+            if peer in rates:
+                rows.append(row("throughput", peer, tets, peer, peer_threads, med[peer],
+                                median_ratio(rates, "softsim", peer), f"softsim / {peer}"))
+    return rows
+
+
+def thread_scaling(sizes, seconds, repeats, threads):
+    """softsim on 1 thread and on ``threads``, interleaved (``numba.set_num_threads`` per call)."""
+    rows = []
+
+    class OnThreads:
+        def __init__(self, sim, n):
+            self.sim, self.n, self.tet_count = sim, n, sim.tet_count
+
+        def run(self, steps):
+            numba.set_num_threads(self.n)
+            try:
+                self.sim.run(steps)
+            finally:
+                numba.set_num_threads(threads)
+
+    for target in sizes:
+        sim = Softsim(prepared_beam(target))
+        runners = {"1": OnThreads(sim, 1), str(threads): OnThreads(sim, threads)}
+        rates = interleaved(runners, seconds, repeats)
+        ratio = median_ratio(rates, str(threads), "1")
+        log(f"  {sim.tet_count:>9} tets: {threads} threads / 1 thread = {ratio:.2f}")
+        rows.append(row("threads", "1 thread", sim.tet_count, "softsim", 1, statistics.median(rates["1"])))
+        rows.append(row("threads", f"{threads} threads", sim.tet_count, "softsim", threads,
+                        statistics.median(rates[str(threads)]), ratio, "1 thread"))
+    return rows
+
+
+def models(target, seconds, repeats, threads):
+    """Each material model against StVK on the same beam."""
+    runners = {name: Softsim(prepared_beam(target, name)) for name in MODELS}
+    rates = interleaved(runners, seconds, repeats)
+    rows = []
+    for name in MODELS:
+        ratio = median_ratio(rates, "stvk", name)
+        log(f"  {name}: {statistics.median(rates[name]):.1f} (stvk / {name} = {ratio:.2f})")
+        rows.append(row("models", name, runners[name].tet_count, "softsim", threads, statistics.median(rates[name]),
+                        ratio, "stvk / model"))
+    return rows
+
+
+FEATURES = {
+    "bare": {},
+    "ground": {"ground": {"height": -1.0, "stiffness": 1e6, "friction": 0.3}},
+    "damping": {"damping": 0.5},
+    "ground + damping": {"ground": {"height": -1.0, "stiffness": 1e6, "friction": 0.3}, "damping": 0.5},
+    "traction": {"tractions": [{"min": [0.999, -1, -1], "max": [1.001, 1, 1], "traction": [0, 0, -1e3]}]},
+}
+
+
+def features(target, seconds, repeats, threads):
+    """The step's cost with each optional feature, against the bare scene (the ground lies below the
+    beam: its contact test runs every step, no vertex touches it)."""
+    runners = {name: Softsim(prepared_beam(target, **extra)) for name, extra in FEATURES.items()}
+    rates = interleaved(runners, seconds, repeats)
+    rows = []
+    for name in FEATURES:
+        ratio = median_ratio(rates, name, "bare")
+        log(f"  {name}: {statistics.median(rates[name]):.1f} ({ratio:.3f} of bare)")
+        rows.append(row("features", name, runners[name].tet_count, "softsim", threads, statistics.median(rates[name]),
+                        ratio, "bare"))
+    return rows
+
+
+def overhead(target, frames, threads):
+    """Time outside the kernels in ``simulate`` (guard, energy, output) at the scene's frame interval:
+    the whole run against the same steps in bare ``step`` calls, on the same model."""
+    from softsim.simulation import simulate
+
+    prepared = prepared_beam(target, output={"frame_interval": 0.001, "fields": []},
+                             time={"duration": 0.001 * frames})
+    sim = Softsim(prepared)
+    sim.run(1)
+    steps = prepared.plan.total_steps
+    with tempfile.TemporaryDirectory() as tmp:
+        simulate(prepared, os.path.join(tmp, "warm.h5"))             # compile the guard and the writer
+        walls, kernels = [], []
+        for k in range(3):
+            start = time.perf_counter()
+            sim.run(steps)
+            kernels.append(time.perf_counter() - start)
+            start = time.perf_counter()
+            simulate(prepared, os.path.join(tmp, f"run{k}.h5"))
+            walls.append(time.perf_counter() - start)
+    wall, kernel = statistics.median(walls), statistics.median(kernels)
+    outside = max(0.0, wall - kernel) / wall
+    log(f"  {frames} frames of 1 ms, {steps} steps: {outside:.1%} of the run outside the step loop")
+    return [row("overhead", "outside kernels", sim.tet_count, "softsim", threads, sim.tet_count * steps / wall / 1e6,
+                outside, "share of wall time", note=f"{frames} frames every 1 ms ({steps // frames} steps each), "
+                                                    f"guard + HDF5 output")]
+
+
+def _probe(args, env=None):
+    out = subprocess.run([sys.executable, "-m", "benchmarks.probe", *map(str, args)], cwd=ROOT, capture_output=True,
+                         text=True, env={**os.environ, **(env or {})})
+    if out.returncode != 0:
+        raise RuntimeError(out.stderr.strip().splitlines()[-1] if out.stderr.strip() else "probe failed")
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def memory(target, threads):
+    """Peak RSS of a fresh process that prepares and steps the beam, and what holds it."""
+    result = _probe(["memory", target])
+    tets = result["tets"]
+    rows = [row("memory", "peak RSS", tets, "softsim", threads, ratio=result["peak_rss"] / tets, ratio_to="bytes per tet",
+                note=f"peak {result['peak_rss'] / 2**20:.0f} MiB; after imports {result['baseline_rss'] / 2**20:.0f} MiB; "
+                     f"peak while preparing {result['peak_after_prepare'] / 2**20:.0f} MiB")]
+    total = sum(result["arrays"].values())
+    rows.append(row("memory", "all arrays of the run", tets, "softsim", ratio=total / tets, ratio_to="bytes per tet",
+                    note="model + block layout + state + work buffer + the mesh in the user's order"))
+    for name, nbytes in sorted(result["arrays"].items(), key=lambda kv: -kv[1]):
+        if nbytes / tets >= 0.5:
+            rows.append(row("memory", name, tets, "softsim", ratio=nbytes / tets, ratio_to="bytes per tet"))
+    log(f"  {tets} tets: peak RSS {result['peak_rss'] / tets:.0f} B/tet")
+    return rows
+
+
+def startup(target):
+    """Seconds to the first step in a fresh process: with an empty JIT cache, then with it warm."""
+    rows = []
+    with tempfile.TemporaryDirectory() as cache:
+        env = {"NUMBA_CACHE_DIR": cache}
+        for case in ("cold (compiles)", "warm (on-disk cache)"):
+            r = _probe(["startup", target], env)
+            rows.append(row("startup", case, target, "softsim", rate=None, ratio=r["total_s"], ratio_to="seconds",
+                            note=f"import {r['import_s']:.2f} s, prepare {r['prepare_s']:.2f} s, "
+                                 f"first step {r['first_step_s']:.2f} s"))
+            log(f"  {case}: {r['total_s']:.1f} s (first step {r['first_step_s']:.2f} s)")
+    return rows
+
+
+def threading_layers(target, seconds, rounds):
+    """softsim under each loadable Numba threading layer, one process per layer, alternating."""
+    rates = {}
+    notes = {}
+    for _ in range(rounds):
+        for layer in ("omp", "tbb", "workqueue"):
+            if layer in notes:
+                continue
+            try:
+                r = _probe(["layer", target, seconds], {"NUMBA_THREADING_LAYER": layer})
+            except RuntimeError as exc:
+                notes[layer] = f"not available: {exc}"
+                continue
+            rates.setdefault(layer, []).extend(r["rates"])
+    rows = []
+    for layer in ("omp", "tbb", "workqueue"):
+        if layer in rates:
+            log(f"  {layer}: {statistics.median(rates[layer]):.1f}")
+            rows.append(row("threading layer", layer, target, "softsim", rate=statistics.median(rates[layer]),
+                            note=f"{len(rates[layer])} timings in {rounds} alternating processes"))
+        else:
+            rows.append(row("threading layer", layer, target, "softsim", note=notes.get(layer, "")))
+    return rows
+
+
+def precision():
+    return [row("precision", "float32", note="not implemented yet: softsim steps in float64 only")]
