@@ -6,6 +6,7 @@ One cluster of two single-threaded process workers serves the whole module; the 
 
 import csv
 import os
+import subprocess
 import sys
 from pathlib import Path
 
@@ -19,7 +20,7 @@ from softsim.cli.main import cli
 from softsim.config import parse_scene
 from softsim.errors import ConfigError, MissingDependencyError, SimulationError
 from softsim.mesh import build_mesh
-from softsim.simulation import prepare
+from softsim.simulation import prepare, simulate
 from softsim.sweep import expand_sweep, load_sweep, parse_sweep, plot_summary, run_sweep, tip_vertices
 from softsim.sweep.runner import (_prepare_with_mesh, build_meshes, import_distributed, local_client, plan_runs,
                                   write_summary)
@@ -46,8 +47,14 @@ FAILING = "youngs_modulus=1e+07__dt=0.0004"
 
 
 @pytest.fixture(scope="module")
-def client():
-    """A local cluster of 2 process workers, 1 Dask thread and 1 Numba thread each, for the module."""
+def client(tmp_path_factory):
+    """A local cluster of 2 process workers, 1 Dask thread and 1 Numba thread each, for the module.
+
+    One short run here first: after a kernel change it compiles once into Numba's disk cache,
+    which the workers then load, instead of every worker compiling the same code at once.
+    """
+    folder = tmp_path_factory.mktemp("warm-up")
+    simulate(prepare(parse_scene(BAR, folder)), folder / "warm-up.h5")
     with local_client(workers=2, numba_threads=1) as dask_client:
         yield dask_client
 
@@ -172,6 +179,11 @@ def test_tip_is_the_far_end_face():
     fixed = points[:, 0] == 0.0
     assert sorted(tip_vertices(points, fixed)) == list(np.flatnonzero(points[:, 0] == 1.0))
     assert tip_vertices(points, np.zeros(len(points), bool)).size == 0
+
+
+def test_the_command_line_does_not_import_dask():
+    code = "import sys, softsim.cli.main; print(sorted(m for m in ('dask', 'distributed') if m in sys.modules))"
+    assert subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout == "[]\n"
 
 
 def test_without_dask_the_error_names_the_extra(monkeypatch):

@@ -400,8 +400,10 @@ def run_sweep(runs, output_dir, client, shared_dir=False, force=False, numba_thr
                 metrics = outcome["metrics"]
             except Exception as exc:    # the worker died (KilledWorker) or the result could not come back
                 error, metrics = (f"{type(exc).__name__}: {exc}".splitlines() or [""])[0], None
-            if metrics is None and run.path.is_file():
-                run.path.unlink()       # an older file of this run would contradict the summary
+            if metrics is None:         # an older file of this run would contradict the summary
+                for stale in (run.path, xdmf_path_for(run.path)):
+                    if stale.is_file():
+                        stale.unlink()
             row = rows[run.index] = summary_row(run, metrics, error)
             done += 1
             failed += row["status"] != "complete"

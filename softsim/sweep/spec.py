@@ -148,9 +148,13 @@ def _check_values(key: str, values: Any, where: str) -> tuple:
     """A non-empty list of values for ``key`` (a range mapping is allowed under ``parameters``)."""
     if where == "parameters" and isinstance(values, Mapping):
         try:
-            return Range.model_validate(values).values()
+            points = Range.model_validate(values).values()
         except ValidationError as error:
             fail(validation_message(error), key=key, show_value=False)
+        if len(set(points)) < len(points):
+            fail(f"gives repeated values {list(points)}; use a larger range or a smaller num", key=key,
+                 show_value=False)
+        return points
     if not isinstance(values, (list, tuple)) or not values:
         allowed = "a non-empty list of values or a range {start, stop, num, log}" if where == "parameters" \
             else "a non-empty list of values"
