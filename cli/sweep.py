@@ -64,8 +64,8 @@ def _column(name, columns, option):
               help="Run on an existing Dask cluster, e.g. tcp://host:8786, instead of a local one.")
 @click.option("--shared-dir", type=click.Path(file_okay=False, path_type=str), default=None,
               help="A folder the workers and this machine see at the same path: workers write the run "
-                   "files there directly (it is the output folder). Default with --scheduler: results "
-                   "come back through Dask.")
+                   "files there directly (it is the output folder). Without it, each run's file comes "
+                   "back through Dask and is written here.")
 @click.option("--force", is_flag=True, help="Rerun every run, also those whose file is complete.")
 @click.option("--dry-run", is_flag=True, help="List the runs and their output files; run nothing.")
 @click.option("--plot", "plot_spec", metavar="X:Y[:LINES]", default=None,
