@@ -20,7 +20,7 @@ from .errors import ConfigError, SimulationError
 from .integrators.guard import RECHECK_STEPS, FrameGuard
 from .integrators.stability import exact_stable_step, nodal_frequency_bound
 from .integrators.timestep import AUTO_SAFETY, dilatational_wave_speed, plan_time
-from .io.hdf5 import RunWriter, check_writable
+from .io.hdf5 import RunWriter, check_writable, read_resume_state
 from .kernels.energy import elastic_energy, gravity_energy, kinetic_energy
 from .kernels.fields import tet_fields
 from .mesh import build_mesh
@@ -248,6 +248,96 @@ def simulate(prepared, output_path, progress=None, should_stop=None, resume=Fals
                       frames=frames, path=str(output_path), status=status, time=state.step * plan.dt)
 
 
+# A run estimated to take longer than this [s of wall time] starts only when confirmed (--yes).
+LONG_RUN_S = 3600.0
+# Above any speed softsim reaches [tet-steps/s]: a run short even at this speed is not measured.
+OPTIMISTIC_TET_STEPS_PER_S = 1e9
+# Wall time [s] of the burst of steps that measures this machine's speed for a long run.
+SPEED_SAMPLE_S = 0.3
+
+
+@dataclass(frozen=True)
+class RunEstimate:
+    """What a prepared run will cost: ``tet_steps`` (sub-steps counted), ``seconds`` of wall time
+    at ``tet_steps_per_s`` measured on this machine (None when the run is short even at an
+    optimistic speed, so nothing was measured), and the output file's size against the free disk."""
+
+    tets: int
+    steps: int
+    tet_steps: float
+    tet_steps_per_s: float
+    seconds: float
+    output_bytes: int
+    free_bytes: int
+
+    def problems(self):
+        """The reasons (text) this run needs confirmation; empty when it does not."""
+        found = []
+        if self.seconds is not None and self.seconds > LONG_RUN_S:
+            found.append(f"{self.tets:,} tets x {self.steps:,} steps take about {_duration_text(self.seconds)} "
+                         f"at this machine's measured {self.tet_steps_per_s / 1e6:.3g} M tet-steps/s")
+        if self.output_bytes > self.free_bytes:
+            found.append(f"the output needs about {self.output_bytes / 1e9:.3g} GB but only "
+                         f"{self.free_bytes / 1e9:.3g} GB are free (the run would stop when the disk is full)")
+        return found
+
+
+def _duration_text(seconds):
+    if seconds >= 2 * 86400:
+        return f"{seconds / 86400:.1f} days"
+    if seconds >= 3600:
+        return f"{seconds / 3600:.1f} h"
+    return f"{seconds / 60:.0f} min"
+
+
+def frame_bytes(node_count, tet_count, fields):
+    """Bytes one frame adds to the output file: positions plus the fields asked for."""
+    from .io.fields import FIELDS
+
+    count = {"vertex": node_count, "tet": tet_count, "frame": 1}
+    total = 8 * (3 * node_count + 1)                      # frames/points and frames/time
+    for name in fields:
+        spec = FIELDS[name]
+        total += 8 * count[spec.location] * int(np.prod(spec.shape, dtype=np.int64)) * len(spec.datasets)
+    return total
+
+
+def estimate_run(prepared, output_path):
+    """A ``RunEstimate`` for ``prepared``: its speed is measured by a short burst of steps on a copy
+    of the initial state, only when the run could be long (the burst also compiles the kernels,
+    which the run would do anyway)."""
+    import shutil
+
+    scene, model, plan = prepared.scene, prepared.model, prepared.plan
+    tet_steps = float(model.tet_count) * plan.total_steps * prepared.substeps
+    seconds, speed = None, OPTIMISTIC_TET_STEPS_PER_S
+    if tet_steps / OPTIMISTIC_TET_STEPS_PER_S > LONG_RUN_S:
+        state = initial_state(scene, model)
+        buffer = work_buffer(model)
+        advance_substeps(model, state, plan.dt, 1, prepared.substeps, scene.damping, buffer)   # compile
+        steps, elapsed = 1, 0.0
+        while elapsed < SPEED_SAMPLE_S and steps < plan.total_steps:
+            started = _time.perf_counter()
+            advance_substeps(model, state, plan.dt, steps, prepared.substeps, scene.damping, buffer)
+            elapsed = _time.perf_counter() - started
+            steps *= 2
+        speed = model.tet_count * (steps // 2) * prepared.substeps / max(elapsed, 1e-9)
+        seconds = tet_steps / speed
+    output_bytes = len(plan.frame_steps) * frame_bytes(model.node_count, model.tet_count, scene.output.fields)
+    free = shutil.disk_usage(Path(output_path).resolve().parent).free
+    return RunEstimate(tets=model.tet_count, steps=plan.total_steps * prepared.substeps, tet_steps=tet_steps, tet_steps_per_s=speed, seconds=seconds,
+                       output_bytes=int(output_bytes), free_bytes=int(free))
+
+
+def check_run_cost(prepared, output_path, confirmed=False):
+    """Raise ``SimulationError`` if the run would take over ``LONG_RUN_S`` or outgrow the free disk,
+    unless ``confirmed``; returns the reasons (empty for an ordinary run) for the caller to show."""
+    problems = estimate_run(prepared, output_path).problems()
+    if problems and not confirmed:
+        raise SimulationError(f"{'; '.join(problems)}; continue with --yes")
+    return problems
+
+
 def check_resumable(scene, output_path):
     """Raise ``SimulationError`` unless ``output_path`` holds an unfinished run of this same scene.
 
@@ -264,13 +354,17 @@ def check_resumable(scene, output_path):
         with h5py.File(path, "r") as f:
             status = str(f.attrs.get("status", ""))
             stored_yaml = str(f.attrs["config"])
-            has_state = "state/positions" in f and "step" in f["state"].attrs
+            has_state = "state" in f and read_resume_state(f) is not None
+            frames = f["frames/time"].shape[0] if "frames/time" in f else 0
     except (OSError, KeyError) as exc:
         raise SimulationError(f"--resume: '{output_path}' is not a softsim output file ({exc})") from None
     if status == "complete":
         raise SimulationError(f"--resume: '{output_path}' is complete; there is nothing to resume")
+    if frames == 0:
+        raise SimulationError(f"--resume: '{output_path}' has no complete frame to resume from; "
+                              f"start the run again with --overwrite")
     if not has_state:
-        raise SimulationError(f"--resume: '{output_path}' has no state/ to resume from")
+        raise SimulationError(f"--resume: '{output_path}' has no intact state/ to resume from")
     stored = yaml.safe_load(stored_yaml)
     current = yaml.safe_load(scene_to_yaml(scene))
     for d in (stored, current):

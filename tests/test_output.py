@@ -12,6 +12,7 @@ from vtkmodules.vtkCommonExecutionModel import vtkStreamingDemandDrivenPipeline
 from vtkmodules.vtkIOXdmf2 import vtkXdmfReader
 
 import softsim.io.hdf5
+from softsim.io.hdf5 import read_resume_state
 import softsim.simulation
 from softsim import __version__
 from softsim.cli.main import cli
@@ -83,8 +84,9 @@ def test_layout_shapes_and_dtypes(full_run):
         assert set(f["frames/energy"]) == {"kinetic", "elastic", "gravity"}
         for term in ("kinetic", "elastic", "gravity"):
             assert f["frames/energy"][term].shape == (FRAMES,)
-        assert f["state/positions"].shape == (NODES, 3)
-        assert f["state/velocities"].shape == (NODES, 3)
+        for slot in ("a", "b"):
+            assert f[f"state/{slot}/positions"].shape == (NODES, 3)
+            assert f[f"state/{slot}/velocities"].shape == (NODES, 3)
 
 
 def test_mesh_group_holds_the_rest_mesh(full_run):
@@ -152,10 +154,14 @@ def test_frame0_is_the_rest_state(full_run):
 def test_state_is_the_last_frame(full_run):
     _, out = full_run
     with h5py.File(out) as f:
-        np.testing.assert_array_equal(f["state/positions"][:], f["frames/points"][-1])
-        np.testing.assert_array_equal(f["state/velocities"][:], f["frames/velocities"][-1])
-        assert f["state"].attrs["time"] == f["frames/time"][-1]
-        assert f["state"].attrs["step"] == f.attrs["steps"]
+        state = read_resume_state(f)
+        np.testing.assert_array_equal(state["positions"], f["frames/points"][-1])
+        np.testing.assert_array_equal(state["velocities"], f["frames/velocities"][-1])
+        assert state["time"] == f["state"].attrs["time"] == f["frames/time"][-1]
+        assert state["step"] == f["state"].attrs["step"] == f.attrs["steps"]
+        # the other slot holds the frame before, also intact
+        other = f["state/a" if f["state"].attrs["current"] == "b" else "state/b"]
+        np.testing.assert_array_equal(other["positions"][...], f["frames/points"][-2])
 
 
 def test_frame0_is_the_initial_deformation_and_velocity(tmp_path):
@@ -181,8 +187,9 @@ def test_without_fields_nothing_extra_is_written(tmp_path):
         assert set(f["frames"]) == {"time", "points"}
         assert f["frames/points"].shape == (FRAMES, NODES, 3)
         # state/ always holds what a resume needs: positions, velocities and the guard's memory
-        assert {"positions", "velocities"} <= set(f["state"])
-        assert all(name.startswith("guard_") for name in set(f["state"]) - {"positions", "velocities"})
+        state = set(f["state/a"])
+        assert {"positions", "velocities"} <= state
+        assert all(name.startswith("guard_") for name in state - {"positions", "velocities"})
         assert f.attrs["status"] == "complete"
     assert "velocity" not in out.with_suffix(".xdmf").read_text()
 
@@ -292,8 +299,9 @@ def _assert_consistent_frames(f, count):
         if name in f:
             assert f[name].shape[0] == count, name
     assert np.isfinite(f["frames/points"][:]).all()
-    np.testing.assert_array_equal(f["state/positions"][:], f["frames/points"][count - 1])
-    assert f["state"].attrs["time"] == f["frames/time"][count - 1]
+    state = read_resume_state(f)
+    np.testing.assert_array_equal(state["positions"], f["frames/points"][count - 1])
+    assert state["time"] == f["frames/time"][count - 1]
 
 
 def test_failed_run_keeps_its_frames(tmp_path, monkeypatch):

@@ -12,6 +12,8 @@ import h5py
 import numpy as np
 import yaml
 
+from ..io.hdf5 import read_resume_state
+
 # Tip vertices: those within this fraction of the greatest distance from the held vertices.
 TIP_TOLERANCE = 1e-3
 
@@ -78,9 +80,10 @@ def run_metrics(path):
             chunk = frames[start:min(start + 64, frame_count)]
             max_displacement = max(max_displacement, float(np.sqrt(((chunk - points) ** 2).sum(axis=2)).max()))
         final = frames[frame_count - 1] if frame_count else points
-        velocities = f["state/velocities"][...]
-        steps_done = int(f["state"].attrs.get("step", 0))
-        time = float(f["state"].attrs.get("time", 0.0))
+        resume_state = read_resume_state(f) or {}
+        velocities = resume_state.get("velocities", np.zeros_like(points))
+        steps_done = int(resume_state.get("step", 0))
+        time = float(resume_state.get("time", 0.0))
         config = yaml.safe_load(str(attrs["config"]))
         row = {
             "status": str(attrs.get("status", "")),

@@ -1,0 +1,223 @@
+"""Crash safety, proven by killing runs: SIGKILL at chosen points inside the writer (the
+``SOFTSIM_CRASH_AT`` hook) and at random moments, then open what is left.
+
+Every kill must leave either no output file or one that opens with plain ``h5py.File(path)``,
+whose ``frames/*`` datasets all have ``frames/time``'s length, holding every frame completed
+before the kill, all finite, with ``status`` not ``complete``; its XDMF (if written yet) opens in
+VTK's XDMF reader (ParaView's); and ``softsim run --resume`` finishes it into the same frames,
+bit for bit, as a run that was never killed.
+"""
+
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor
+
+import h5py
+import numpy as np
+import pytest
+
+from softsim.io.hdf5 import read_resume_state
+
+SCENE = """\
+mesh: {shape: box, size: [0.2, 0.05, 0.05], element_size: 0.025, structured: true}
+material: {model: stvk, youngs_modulus: 1.0e6, poissons_ratio: 0.3, density: 1000.0}
+fixed: [{min: [-1.0e-6, -1, -1], max: [1.0e-6, 1, 1]}]
+time: {duration: 0.2}
+output: {frame_interval: 0.002, fields: [velocities, energy]}
+"""
+FRAMES = 101       # 0.2 s / 0.002 s + the initial frame
+
+# (hook point, frame): the frames completed before the kill are those before `frame`, plus
+# `frame` itself once it has been flushed.
+FRAME_POINTS = ["frame_start", "after_points", "after_velocities", "after_energy", "after_time",
+                "before_flush", "after_flush"]
+HOOKS = ([(point, 0) for point in FRAME_POINTS] + [(point, 7) for point in FRAME_POINTS]
+         + [("before_xdmf", 0), ("before_rename", None), ("finish_before_status", None),
+            ("finish_after_flush", None)])
+RANDOM_KILLS = int(os.environ.get("SOFTSIM_RANDOM_KILLS", "10"))
+ENV = {**os.environ, "NUMBA_NUM_THREADS": "1"}
+
+
+def softsim(args, cwd, **env):
+    return subprocess.Popen([sys.executable, "-m", "softsim.cli.main", *args], cwd=cwd,
+                            env={**ENV, **env}, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+
+
+def run_to_end(args, cwd, **env):
+    process = softsim(args, cwd, **env)
+    out, err = process.communicate(timeout=300)
+    return process.returncode, err.decode()
+
+
+@pytest.fixture(scope="module")
+def workdir(tmp_path_factory):
+    """A folder with the scene and the uninterrupted reference run (also warms the JIT cache)."""
+    folder = tmp_path_factory.mktemp("crash")
+    (folder / "scene.yaml").write_text(SCENE)
+    code, err = run_to_end(["run", "scene.yaml", "-o", "reference.h5"], folder)
+    assert code == 0, err
+    return folder
+
+
+def frame_datasets(f):
+    found = {}
+    f["frames"].visititems(lambda name, obj: found.setdefault(name, obj) if isinstance(obj, h5py.Dataset) else None)
+    return found
+
+
+def check_left_file(path, frames_done=None, complete=False):
+    """The file a kill left: opens, equal lengths, finite, not complete (unless the kill came after
+    the final status was on disk). Returns its frame count."""
+    with h5py.File(path) as f:                       # plain open: no repair step
+        assert (f.attrs["status"] == "complete") == complete
+        k = f["frames/time"].shape[0]
+        for name, dataset in frame_datasets(f).items():
+            assert dataset.shape[0] == k, f"frames/{name} has {dataset.shape[0]} rows, frames/time {k}"
+            assert np.isfinite(dataset[...]).all(), name
+        assert np.all(np.diff(f["frames/time"][...]) > 0)
+        if k:     # an intact resume state of a frame still in the file (the last, or the one before)
+            state = read_resume_state(f)
+            assert state is not None
+            i = int(np.searchsorted(f["frames/time"][...], state["time"]))
+            assert i >= k - 2 and f["frames/time"][i] == state["time"]
+            assert np.array_equal(state["positions"], f["frames/points"][i])
+        if frames_done is not None:
+            assert k == frames_done
+    return k
+
+
+def check_xdmf_opens(h5_path):
+    """ParaView's reader opens the XDMF left beside the file and sees no more frames than it holds."""
+    vtk = pytest.importorskip("vtkmodules.all")
+    xdmf = h5_path.with_suffix(".xdmf")
+    if not xdmf.exists():
+        return
+    reader = vtk.vtkXdmfReader()
+    reader.SetFileName(str(xdmf))
+    reader.UpdateInformation()
+    info = reader.GetOutputInformation(0)
+    steps = info.Get(vtk.vtkStreamingDemandDrivenPipeline.TIME_STEPS()) or ()
+    with h5py.File(h5_path) as f:
+        assert 1 <= len(steps) <= f["frames/time"].shape[0]
+        t_last = float(steps[-1])
+        info.Set(vtk.vtkStreamingDemandDrivenPipeline.UPDATE_TIME_STEP(), t_last)
+        reader.Update()
+        grid = reader.GetOutputDataObject(0)
+        while not hasattr(grid, "GetPoints"):          # a temporal collection: its only block
+            grid = grid.GetBlock(0)
+        i = int(np.argmin(abs(f["frames/time"][...] - t_last)))
+        assert grid.GetNumberOfPoints() == f["mesh/points"].shape[0]
+        assert grid.GetNumberOfCells() == f["mesh/tets"].shape[0]
+        points = np.array([grid.GetPoint(j) for j in range(grid.GetNumberOfPoints())])
+        assert np.array_equal(points, f["frames/points"][i])
+
+
+def check_resume_matches_reference(folder, name):
+    code, err = run_to_end(["run", "scene.yaml", "-o", name, "--resume"], folder)
+    assert code == 0, err
+    with h5py.File(folder / name) as resumed, h5py.File(folder / "reference.h5") as reference:
+        assert resumed.attrs["status"] == "complete"
+        ours, theirs = frame_datasets(resumed), frame_datasets(reference)
+        assert ours.keys() == theirs.keys()
+        for key in theirs:
+            assert np.array_equal(ours[key][...], theirs[key][...]), key
+
+
+def expected_frames(point, frame):
+    if point in ("finish_before_status", "finish_after_flush"):
+        return FRAMES
+    if point == "before_xdmf" or point == "after_flush":
+        return frame + 1
+    return frame
+
+
+def kill_at_hook(folder, point, frame):
+    name = f"hook-{point}-{frame}.h5"
+    code, err = run_to_end(["run", "scene.yaml", "-o", name], folder,
+                           SOFTSIM_CRASH_AT=point if frame is None else f"{point}:{frame}")
+    assert code == -signal.SIGKILL, f"{point}:{frame} did not kill the run (exit {code}): {err}"
+    return name
+
+
+def test_a_kill_at_every_writer_point_leaves_a_readable_file_that_resumes(workdir):
+    with ThreadPoolExecutor(2) as pool:
+        names = list(pool.map(lambda hook: kill_at_hook(workdir, *hook), HOOKS))
+    for (point, frame), name in zip(HOOKS, names):
+        path = workdir / name
+        if point == "before_rename":
+            # Killed before the file had its layout: nothing under the output name, and
+            # only the hidden partial file is left behind.
+            assert not path.exists()
+            assert list(workdir.glob(f".{name}.partial-*"))
+            continue
+        check_left_file(path, expected_frames(point, frame), complete=point == "finish_after_flush")
+        check_xdmf_opens(path)
+    # Resume every kill that left a frame and no final status; a file with no frame yet is refused.
+    resumable = [name for (point, frame), name in zip(HOOKS, names)
+                 if frame or point == "finish_before_status"]
+    code, err = run_to_end(["run", "scene.yaml", "-o", "hook-frame_start-0.h5", "--resume"], workdir)
+    assert code != 0 and "no complete frame" in err and "Traceback" not in err
+    with ThreadPoolExecutor(2) as pool:
+        list(pool.map(lambda name: check_resume_matches_reference(workdir, name), resumable))
+
+
+def kill_at_random(folder, seed):
+    """Start a run and SIGKILL it at a random moment of its life (start-up included)."""
+    name = f"random-{seed}.h5"
+    rng = random.Random(seed)
+    process = softsim(["run", "scene.yaml", "-o", name], folder)
+    started = time.monotonic()
+    # Most kills land while frames are written: wait for the file, then a random part of the run.
+    if rng.random() < 0.8:
+        while not (folder / name).exists() and process.poll() is None and time.monotonic() - started < 120:
+            time.sleep(0.005)
+        time.sleep(rng.uniform(0.0, 1.0))
+    else:
+        time.sleep(rng.uniform(0.0, 3.0))
+    process.send_signal(signal.SIGKILL)
+    process.communicate()
+    return name, process.returncode
+
+
+@pytest.mark.skipif(RANDOM_KILLS == 0, reason="SOFTSIM_RANDOM_KILLS=0")
+def test_kills_at_random_moments_leave_readable_files(workdir):
+    with ThreadPoolExecutor(2) as pool:
+        outcomes = list(pool.map(lambda seed: kill_at_random(workdir, seed), range(RANDOM_KILLS)))
+    killed_mid_run = 0
+    for name, code in outcomes:
+        path = workdir / name
+        if code == 0:          # finished before the kill: a complete file
+            with h5py.File(path) as f:
+                assert f.attrs["status"] == "complete"
+            continue
+        assert code == -signal.SIGKILL
+        if path.exists():
+            killed_mid_run += check_left_file(path) > 0
+            check_xdmf_opens(path)
+    assert killed_mid_run >= RANDOM_KILLS // 2, "the random kills missed the frame-writing phase"
+
+
+
+def test_a_full_disk_stops_the_run_in_one_line_and_keeps_the_frames(workdir, monkeypatch):
+    """The disk fills up during the run (free space shrinks with every frame): the run stops
+    before the frame that would not fit, with one line; the file keeps the frames before and
+    says ``failed``."""
+    from softsim.config import load_scene
+    from softsim.errors import SimulationError
+    from softsim.io import hdf5
+    from softsim.simulation import prepare, simulate
+
+    free = iter(np.linspace(20e6, 0.0, 21))
+    monkeypatch.setattr(hdf5, "free_bytes", lambda path: next(free))
+    with pytest.raises(SimulationError) as error:
+        simulate(prepare(load_scene(workdir / "scene.yaml")), workdir / "full.h5")
+    message = str(error.value)
+    assert "disk is full" in message and "frames before it are kept" in message and "\n" not in message
+    with h5py.File(workdir / "full.h5") as f:
+        assert f.attrs["status"] == "failed" and "disk is full" in f.attrs["status_reason"]
+    frames = check_left_file(workdir / "full.h5", complete=False)
+    assert 1 <= frames < FRAMES
