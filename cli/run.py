@@ -10,7 +10,7 @@ import click
 from softsim.config import load_scene
 from softsim.io.hdf5 import check_writable
 from softsim.mesh import format_quality
-from softsim.simulation import check_resumable, prepare, simulate
+from softsim.simulation import check_resumable, check_run_cost, prepare, simulate
 
 from .options import scene_argument, set_option
 
@@ -61,8 +61,10 @@ def stop_on_signals():
 @click.option("--overwrite", is_flag=True, help="Replace an existing output file.")
 @click.option("--resume", is_flag=True,
               help="Continue an interrupted or crashed run in the output file from its last complete frame.")
+@click.option("-y", "--yes", is_flag=True,
+              help="Start even if the run is estimated to take over an hour or to outgrow the free disk.")
 @set_option
-def run(scene, output, overwrite, resume, overrides):
+def run(scene, output, overwrite, resume, yes, overrides):
     """Simulate SCENE (a YAML scene file) and write its frames to an HDF5 file.
 
     \b
@@ -86,6 +88,8 @@ def run(scene, output, overwrite, resume, overrides):
     given = "" if prepared.substeps == 1 else f" (time.dt split into {prepared.substeps} sub-steps, dt_policy: substep)"
     log.info("dt = %.4g s%s, stable step %.4g s, %d steps, %d frames",
              plan.dt, given, prepared.safe_dt, plan.total_steps, len(plan.frame_steps))
+    for problem in check_run_cost(prepared, scene_config.output.path, confirmed=yes):
+        log.warning("%s (--yes given)", problem)
     bar = _progress_bar(plan.total_steps)
     update = None if bar is None else (lambda done, total: bar.update(done - bar.n))
     try:

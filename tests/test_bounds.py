@@ -1,0 +1,79 @@
+"""Bounds: a run that would take hours, outgrow the disk or not fit in memory is stopped before it
+starts, with the estimate in one line (``--yes`` starts a long one anyway)."""
+
+import shutil
+from collections import namedtuple
+
+import pytest
+from click.testing import CliRunner
+
+from softsim import simulation
+from softsim.cli.main import cli
+from softsim.errors import MeshError, SimulationError
+from softsim.mesh import build_mesh
+from softsim.simulation import check_run_cost, estimate_run, prepare
+
+# 25,000 steel tets for 1000 s at a microsecond step: weeks of work on any machine.
+LONG = ["mesh.element_size=0.01", "material.youngs_modulus=2e11", "material.density=7850",
+        "time.duration=1000", "output.frame_interval=1", "output.fields=[]", "damping=0"]
+
+
+def write_scene(tmp_path, scene):
+    path = tmp_path / "scene.yaml"
+    path.write_text("""\
+mesh: {shape: box, size: [0.5, 0.1, 0.1], element_size: 0.05, structured: true}
+material: {model: stvk, youngs_modulus: 1.0e6, poissons_ratio: 0.3, density: 1000.0}
+fixed: [{min: [-1.0e-6, -1, -1], max: [1.0e-6, 1, 1]}]
+time: {duration: 0.01}
+output: {frame_interval: 0.005, fields: [velocities]}
+""")
+    return path
+
+
+def test_a_run_of_weeks_is_refused_with_its_measured_estimate(tmp_path):
+    path = write_scene(tmp_path, None)
+    args = ["run", str(path), "-o", str(tmp_path / "long.h5")]
+    for override in LONG:
+        args += ["--set", override]
+    result = CliRunner().invoke(cli, args)
+    assert result.exit_code == 1
+    message = result.output.strip().splitlines()[-1]
+    assert "25,000 tets x" in message and "days at this machine's measured" in message, message
+    assert message.endswith("continue with --yes")
+    assert not (tmp_path / "long.h5").exists()
+
+
+def test_the_estimate_measures_speed_only_for_long_runs(scene, tmp_path, monkeypatch):
+    short = estimate_run(prepare(scene()), tmp_path / "out.h5")
+    assert short.seconds is None and short.problems() == []
+    long = prepare(scene(mesh={"shape": "box", "size": [0.5, 0.1, 0.1], "element_size": 0.01, "structured": True},
+                         material={"model": "stvk", "youngs_modulus": 2e11, "poissons_ratio": 0.3, "density": 7850},
+                         time={"duration": 1000.0}, output={"frame_interval": 1.0}))
+    estimate = estimate_run(long, tmp_path / "out.h5")
+    assert 1e5 < estimate.tet_steps_per_s < simulation.OPTIMISTIC_TET_STEPS_PER_S
+    assert estimate.seconds == pytest.approx(estimate.tet_steps / estimate.tet_steps_per_s)
+    assert estimate.seconds > simulation.LONG_RUN_S
+    with pytest.raises(SimulationError, match="continue with --yes"):
+        check_run_cost(long, tmp_path / "out.h5")
+    assert len(check_run_cost(long, tmp_path / "out.h5", confirmed=True)) == 1
+
+
+def test_output_larger_than_the_free_disk_is_refused(scene, tmp_path, monkeypatch):
+    prepared = prepare(scene(output={"frame_interval": 0.001, "fields": ["velocities", "stress"]}))
+    estimate = estimate_run(prepared, tmp_path / "out.h5")
+    model = prepared.model
+    per_frame = 8 * (3 * model.node_count + 1) + 8 * 3 * model.node_count + 8 * 9 * model.tet_count
+    assert estimate.output_bytes == len(prepared.plan.frame_steps) * per_frame
+    Usage = namedtuple("Usage", "total used free")
+    monkeypatch.setattr(shutil, "disk_usage", lambda path: Usage(1, 1, estimate.output_bytes // 2))
+    with pytest.raises(SimulationError, match=r"output needs about .* GB but only .* GB are free"):
+        check_run_cost(prepared, tmp_path / "out.h5")
+
+
+def test_a_mesh_that_would_not_fit_in_memory_is_refused_before_meshing(scene, monkeypatch):
+    import softsim.mesh as mesh_module
+
+    monkeypatch.setattr(mesh_module, "available_memory_bytes", lambda: 100e6)
+    spec = scene(mesh={"shape": "box", "size": [1.0, 1.0, 1.0], "element_size": 0.02}).mesh
+    with pytest.raises(MeshError, match=r"mesh.element_size = 0.02: about .* tetrahedra need ~.* GB .* only 0.1 GB"):
+        build_mesh(spec)
