@@ -37,7 +37,7 @@ def memory(tets):
     for name, value in vars(model).items():
         if isinstance(value, np.ndarray):
             arrays[name] = value.nbytes
-    for name in ("tets", "rest", "colour_offsets", "colour_blocks"):
+    for name in ("tets", "rest", "colour_offsets", "colour_parts"):
         arrays[f"blocks.{name}"] = getattr(model.blocks, name).nbytes
     arrays["state (x, v, held_start)"] = 3 * sim.state.x.nbytes
     arrays["work buffer"] = sim.work.nbytes

@@ -75,16 +75,20 @@ def test_fewer_tets_than_a_block():
                                    atol=1e-11 * np.abs(f_naive).max())
 
 
-def test_blocks_of_one_colour_share_no_vertex():
+def test_parts_of_one_colour_share_no_vertex():
     points, tets, _ = mesh((9, 6, 4))
     layout = Body(points, tets, "colour").blocks
+    block_count = layout.tets.shape[0]
+    part_count = -(-block_count // layout.part_blocks)
     assert layout.colour_count >= 2
-    assert np.array_equal(np.sort(layout.colour_blocks), np.arange(layout.tets.shape[0]))
-    lanes = np.arange(layout.tets.shape[0] * BLOCK).reshape(-1, BLOCK)
+    assert np.array_equal(np.sort(layout.colour_parts), np.arange(part_count))
+    lanes = np.arange(block_count * BLOCK).reshape(-1, BLOCK)
     for c in range(layout.colour_count):
         seen = set()
-        for b in layout.colour_blocks[layout.colour_offsets[c]:layout.colour_offsets[c + 1]]:
-            vertices = set(layout.tets[b][:, lanes[b] < len(tets)].ravel().tolist())
+        for p in layout.colour_parts[layout.colour_offsets[c]:layout.colour_offsets[c + 1]]:
+            vertices = set()
+            for b in range(p * layout.part_blocks, min((p + 1) * layout.part_blocks, block_count)):
+                vertices |= set(layout.tets[b][:, lanes[b] < len(tets)].ravel().tolist())
             assert not (seen & vertices)
             seen |= vertices
 

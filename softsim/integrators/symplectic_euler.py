@@ -108,15 +108,14 @@ def update_vertex(x, v, i, fx, fy, fz, dt, t_next, inv_mass, external_accel, hel
 
 @njit
 def block_range_forces(x, blocks, first, stop, model, lam, mu, scatter, vertex_forces, corner_forces):
-    """Forces of the blocks ``blocks[0][first:stop]`` (block ids).
+    """Forces of blocks ``first`` to ``stop - 1``, in order.
 
-    scatter: add them to ``vertex_forces`` (node_count, 3) (the blocks must share no vertex); else
-    store them per (tet, corner) into ``corner_forces`` (tet_count, 4, 3).
+    scatter: add them to ``vertex_forces`` (node_count, 3) (no other thread may be writing the
+    vertices of these blocks); else store them per (tet, corner) into ``corner_forces`` (tet_count, 4, 3).
     """
-    block_ids, block_tets, block_rest, tet_count = blocks
+    block_tets, block_rest, tet_count, _, _ = blocks
     buf = np.empty(ROWS * BLOCK)
-    for k in range(first, stop):
-        b = block_ids[k]
+    for b in range(first, stop):
         block_forces(x, block_tets, block_rest, b, model, lam, mu, buf)
         lane_count = min(BLOCK, tet_count - b * BLOCK)
         if scatter:
@@ -133,21 +132,24 @@ def advance(x, v, step_start, step_count, dt,
     """Advance positions ``x`` and velocities ``v`` (node_count, 3) [m, m/s] in place by ``step_count`` steps.
 
     step_start: index of the first step (time ``step_start * dt`` [s]); dt [s].
-    blocks: ``(block_ids, block_tets, block_rest, tet_count)`` of ``kernels.blocked.BlockLayout``, the
-    block ids in colour order; colour_offsets: (colours + 1,) into block_ids; model id, Lame lam, mu [Pa].
-    scatter True: the forces are added a colour at a time into ``vertex_forces`` (node_count, 3);
-    False: stored into ``corner_forces`` (tet_count, 4, 3) and gathered per vertex through the
-    vertex -> (tet, corner) map ``offsets`` (n+1,), ``slots`` (4m,).
+    blocks: ``(block_tets, block_rest, tet_count, part_blocks, colour_parts)`` of a
+    ``kernels.blocked.BlockLayout``; colour_offsets: (colours + 1,) into colour_parts; model id, Lame
+    lam, mu [Pa].
+    scatter True: the forces are added into ``vertex_forces`` (node_count, 3), one colour of parts
+    at a time, its parts in parallel; False: stored into ``corner_forces`` (tet_count, 4, 3) and
+    gathered per vertex through the vertex -> (tet, corner) map ``offsets`` (n+1,), ``slots`` (4m,).
     inv_mass (n,) [1/kg]; external_accel (n, 3) [m/s^2]: gravity plus tractions / mass.
     held (n, 3) bool; held_start, held_velocity (n, 3) [m, m/s]: prescribed motion of held components.
     ground: None, or the tuple ``ground_contact`` takes; damping_factor: None, or exp(-damping dt).
     threads: ``numba.get_num_threads()``.
 
-    The blocks are split into as many contiguous chunks as threads (a scratch buffer per chunk);
-    every vertex sums its forces in a fixed order, so a run gives the same bits every time.
+    Every vertex sums its forces in a fixed order, whatever the thread count: a run gives the same
+    bits every time.
     """
     node_count = x.shape[0]
     block_count = blocks[0].shape[0]
+    part_blocks = blocks[3]
+    colour_parts = blocks[4]
     if scatter:
         for i in prange(node_count):
             vertex_forces[i, 0] = 0.0
@@ -157,13 +159,10 @@ def advance(x, v, step_start, step_count, dt,
         t_next = (step + 1) * dt
         if scatter:
             for colour in range(colour_offsets.shape[0] - 1):
-                first = colour_offsets[colour]
-                count = colour_offsets[colour + 1] - first
-                chunks = min(threads, count)
-                for chunk in prange(chunks):
-                    block_range_forces(x, blocks, first + chunk * count // chunks,
-                                       first + (chunk + 1) * count // chunks, model, lam, mu, scatter,
-                                       vertex_forces, corner_forces)
+                for k in prange(colour_offsets[colour], colour_offsets[colour + 1]):
+                    first = colour_parts[k] * part_blocks
+                    block_range_forces(x, blocks, first, min(first + part_blocks, block_count),
+                                       model, lam, mu, scatter, vertex_forces, corner_forces)
         else:
             chunks = min(threads, block_count)
             for chunk in prange(chunks):
@@ -193,13 +192,12 @@ def step_arguments(model, work):
     layout = model.blocks
     n, m = model.node_count, model.tet_count
     flat = work.reshape(-1)
+    blocks = (layout.tets, layout.rest, layout.tet_count, layout.part_blocks, layout.colour_parts)
     if layout.scatter == "colour":
-        blocks = (layout.colour_blocks, layout.tets, layout.rest, layout.tet_count)
         vertex_forces = flat[:3 * n].reshape(n, 3) if flat.size >= 3 * n else np.empty((n, 3))
         corner_forces = np.empty((0, 4, 3))
         scatter = True
     else:
-        blocks = (np.arange(layout.tets.shape[0], dtype=np.int64), layout.tets, layout.rest, layout.tet_count)
         vertex_forces = np.empty((0, 3))
         corner_forces = flat[:12 * m].reshape(m, 4, 3)
         scatter = False

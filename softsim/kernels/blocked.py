@@ -45,10 +45,14 @@ ROWS = 34                  # rows of the scratch buffer; ``ROWS * BLOCK`` float6
 
 
 # Scatter of the corner forces: ``colour`` adds each block's forces straight into the vertex forces,
-# one colour of blocks at a time (no per-tet buffer, a barrier per colour); ``csr`` writes them
+# one colour of parts at a time (no per-tet buffer, a barrier per colour); ``csr`` writes them
 # into a per-(tet, corner) buffer that each vertex then gathers (two barriers per step, 96 B/tet
 # more traffic).  Below this many tets the colour barriers cost more than the buffer saves.
 COLOUR_MIN_TETS = 50_000
+# The blocks are grouped into about this many parts of consecutive blocks (compact in space: the
+# tets are in Morton order); parts sharing no vertex get one colour and are scattered in parallel.
+# Few, large parts need few colours (about 4 on a beam), hence few barriers per step.
+PARTS = 32
 
 
 @dataclass(frozen=True)
@@ -56,15 +60,17 @@ class BlockLayout:
     """The tets of a model in blocks of ``BLOCK`` for the vectorised step (see the module docstring).
 
     tets (block_count, 4, BLOCK) uint32; rest (block_count, 10, BLOCK) [1/m, m^3]; tet_count: real
-    tets (the last block is padded); colour_offsets (colours + 1,), colour_blocks (block_count,):
-    blocks grouped by colour; scatter: ``"colour"`` or ``"csr"``.
+    tets (the last block is padded); part_blocks: blocks per part (part p is blocks
+    ``p * part_blocks`` up to the next part's first); colour_offsets (colours + 1,), colour_parts
+    (part_count,): parts grouped by colour; scatter: ``"colour"`` or ``"csr"``.
     """
 
     tets: np.ndarray
     rest: np.ndarray
     tet_count: int
+    part_blocks: int
     colour_offsets: np.ndarray
-    colour_blocks: np.ndarray
+    colour_parts: np.ndarray
     scatter: str
 
     @property
@@ -75,11 +81,12 @@ class BlockLayout:
 def build_block_layout(tets, Dm_inv, rest_volume, node_count, scatter=None):
     """The ``BlockLayout`` of a mesh; ``scatter`` None picks by size (``COLOUR_MIN_TETS``)."""
     block_tets, block_rest = block_layout(tets, Dm_inv, rest_volume)
-    colour_offsets, colour_blocks = block_colouring(block_tets, tets.shape[0], node_count)
+    part_blocks = max(1, -(-block_tets.shape[0] // PARTS))
+    colour_offsets, colour_parts = part_colouring(block_tets, tets.shape[0], node_count, part_blocks)
     if scatter is None:
         scatter = "colour" if tets.shape[0] >= COLOUR_MIN_TETS else "csr"
-    return BlockLayout(tets=block_tets, rest=block_rest, tet_count=int(tets.shape[0]),
-                       colour_offsets=colour_offsets, colour_blocks=colour_blocks, scatter=scatter)
+    return BlockLayout(tets=block_tets, rest=block_rest, tet_count=int(tets.shape[0]), part_blocks=part_blocks,
+                       colour_offsets=colour_offsets, colour_parts=colour_parts, scatter=scatter)
 
 
 def block_layout(tets, Dm_inv, rest_volume):
@@ -102,45 +109,47 @@ def block_layout(tets, Dm_inv, rest_volume):
     return block_tets.astype(np.uint32), block_rest
 
 
-def block_colouring(block_tets, tet_count, node_count):
-    """``(colour_offsets, colour_blocks)``: blocks grouped so that no two of a colour share a vertex.
+def part_colouring(block_tets, tet_count, node_count, part_blocks):
+    """``(colour_offsets, colour_parts)``: parts of ``part_blocks`` consecutive blocks, grouped so that
+    no two parts of a colour share a vertex.
 
-    Greedy colouring in block order.  The blocks of colour ``c`` are
-    ``colour_blocks[colour_offsets[c]:colour_offsets[c + 1]]``, in increasing order: scattering one
-    colour at a time, in parallel over its blocks, no two threads write the same vertex and every
-    vertex receives its contributions in the same order on every run.
+    Greedy colouring in part order.  The parts of colour ``c`` are
+    ``colour_parts[colour_offsets[c]:colour_offsets[c + 1]]``, in increasing order: scattering one
+    colour at a time, in parallel over its parts and in block order within a part, no two threads
+    write the same vertex and every vertex receives its contributions in the same order on every
+    run, whatever the thread count.
     """
     block_count = block_tets.shape[0]
+    part_count = -(-block_count // part_blocks)
     lanes = np.arange(block_count * BLOCK).reshape(block_count, 1, BLOCK)
     real = np.broadcast_to(lanes < tet_count, block_tets.shape)
-    vertex = block_tets[real]
-    block = np.broadcast_to(np.arange(block_count)[:, None, None], block_tets.shape)[real]
-    pairs = np.unique(vertex.astype(np.int64) * block_count + block)
-    vertex, block = pairs // block_count, pairs % block_count
-    # vertex -> blocks (CSR) and block -> vertices
+    vertex = block_tets[real].astype(np.int64)
+    part = np.broadcast_to((np.arange(block_count) // part_blocks)[:, None, None], block_tets.shape)[real]
+    pairs = np.unique(vertex * part_count + part)
+    vertex, part = pairs // part_count, pairs % part_count
+    # vertex -> parts (CSR, from the sorted pairs) and part -> vertices
     v_offsets = np.zeros(node_count + 1, dtype=np.int64)
     np.cumsum(np.bincount(vertex, minlength=node_count), out=v_offsets[1:])
-    order = np.argsort(block, kind="stable")
-    b_vertices = vertex[order]
-    b_offsets = np.zeros(block_count + 1, dtype=np.int64)
-    np.cumsum(np.bincount(block, minlength=block_count), out=b_offsets[1:])
-    colour = _greedy_colours(v_offsets, block, b_offsets, b_vertices, block_count)
-    colour_blocks = np.argsort(colour, kind="stable").astype(np.int64)
+    order = np.argsort(part, kind="stable")
+    p_offsets = np.zeros(part_count + 1, dtype=np.int64)
+    np.cumsum(np.bincount(part, minlength=part_count), out=p_offsets[1:])
+    colour = _greedy_colours(v_offsets, part, p_offsets, vertex[order], part_count)
+    colour_parts = np.argsort(colour, kind="stable").astype(np.int64)
     colour_offsets = np.zeros(int(colour.max(initial=-1)) + 2, dtype=np.int64)
     np.cumsum(np.bincount(colour), out=colour_offsets[1:])
-    return colour_offsets, colour_blocks
+    return colour_offsets, colour_parts
 
 
 @njit
-def _greedy_colours(v_offsets, v_blocks, b_offsets, b_vertices, block_count):
-    """Smallest colour per block not used by an earlier block sharing a vertex with it."""
-    colour = np.full(block_count, -1, dtype=np.int64)
-    taken = np.full(block_count + 1, -1, dtype=np.int64)      # taken[c] == b: colour c used near b
-    for b in range(block_count):
-        for k in range(b_offsets[b], b_offsets[b + 1]):
-            i = b_vertices[k]
+def _greedy_colours(v_offsets, v_units, u_offsets, u_vertices, unit_count):
+    """Smallest colour per unit not used by an earlier unit sharing a vertex with it."""
+    colour = np.full(unit_count, -1, dtype=np.int64)
+    taken = np.full(unit_count + 1, -1, dtype=np.int64)      # taken[c] == b: colour c used next to b
+    for b in range(unit_count):
+        for k in range(u_offsets[b], u_offsets[b + 1]):
+            i = u_vertices[k]
             for s in range(v_offsets[i], v_offsets[i + 1]):
-                c = colour[v_blocks[s]]
+                c = colour[v_units[s]]
                 if c >= 0:
                     taken[c] = b
         c = 0
