@@ -98,6 +98,7 @@ def mtimes(folder):
     ({"base": "bar.yaml", "parameters": {"material": [{}]}, "zip": {"material.density": [1e3]}},
      "material.density: overlaps material"),
     ({"base": "bar.yaml", "parameters": {"output.path": ["a.h5"]}}, "output.path: is set by the sweep"),
+    ({"base": "bar.yaml", "parameters": {"fixed.min": [[0, 0, 0]]}}, "vary fixed as a whole"),
     ({"base": "bar.yaml", "parameters": {"damping": [0.0, 1.0]}, "set": {"damping": 2.0}},
      "damping: is given twice (parameters, zip, set)"),
     ({"base": "bar.yaml", "parameters": {"damping": [0.0, 1.0]}, "set": {"time.durations": 2.0}},

@@ -115,9 +115,12 @@ class Range(Section):
 
 
 def _section_of(annotation: Any):
-    """The ``Section`` model a field holds (through Optional / Annotated), or None for a leaf."""
+    """The ``Section`` model a field holds (through Optional / Annotated), or None for a leaf
+    (a number, a vector, or a list of sections such as ``fixed``: varied as a whole)."""
     if isinstance(annotation, type) and issubclass(annotation, BaseModel):
         return annotation
+    if typing.get_origin(annotation) in (tuple, list):
+        return None
     for argument in typing.get_args(annotation):
         found = _section_of(argument)
         if found is not None:
@@ -132,7 +135,8 @@ def check_scene_key(key: str) -> None:
     for depth, part in enumerate(parts):
         where = ".".join(parts[:depth])
         if model is None:
-            fail(f"is not a scene key: {where} is a value, not a section", key=key, show_value=False)
+            fail(f"is not a scene key: {where} is a value or a list, not a section; vary {where} as a whole",
+                 key=key, show_value=False)
         if part not in model.model_fields:
             allowed = list(model.model_fields)
             close = difflib.get_close_matches(part, allowed, n=1)
