@@ -16,6 +16,7 @@ from . import render as render_command
 from . import run as run_command
 from . import stability as stability_command
 from . import sweep as sweep_command
+from . import verify as verify_command
 
 EXIT_INTERRUPTED = 130
 
@@ -77,6 +78,7 @@ cli.add_command(plot_command.plot)
 cli.add_command(export_command.export)
 cli.add_command(render_command.render)
 cli.add_command(sweep_command.sweep)
+cli.add_command(verify_command.verify)
 
 
 def main():

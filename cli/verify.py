@@ -4,7 +4,7 @@
 import click
 
 from softsim.verify.cases import CASES, MODELS
-from softsim.verify.report import verify_report
+from softsim.verify.report import replot_report, verify_report
 
 
 @click.command()
@@ -17,7 +17,10 @@ from softsim.verify.report import verify_report
               show_default=True, help="Folder for verify.csv, verify_<case>.png and verify.md.")
 @click.option("--threads", type=click.IntRange(min=1), default=None,
               help="Numba threads for the runs (default: Numba's setting, all cores).")
-def verify(quick, cases, models, out_dir, threads):
+@click.option("--replot", is_flag=True,
+              help="Run nothing: redraw the plots and verify.md from OUTPUT/verify.csv (e.g. after installing "
+                   "the plot extra).")
+def verify(quick, cases, models, out_dir, threads, replot):
     """Run verification cases with analytic answers over ladders of element size and time step,
     for every material model, and write the error against wall time: verify.csv, one plot per
     case and verify.md (the cheapest run for an error budget of 1 % and 0.1 %).
@@ -26,9 +29,13 @@ def verify(quick, cases, models, out_dir, threads):
     Examples:
       softsim verify --quick -o verify-quick
       softsim verify --case cantilever --model stvk
+      softsim verify --replot -o verify
     """
-    report = verify_report(out_dir, quick=quick, cases=cases or None, models=models or MODELS, threads=threads,
-                           progress=lambda line: click.echo(line, err=True))
+    if replot:
+        report = replot_report(out_dir, quick=quick)
+    else:
+        report = verify_report(out_dir, quick=quick, cases=cases or None, models=models or MODELS, threads=threads,
+                               progress=lambda line: click.echo(line, err=True))
     click.echo(report.table())
     for name, lines in report.budgets.items():
         if lines:

@@ -288,7 +288,7 @@ def test_cantilever_threshold_catches(mutation):
 def test_cli_verify_runs_a_case_and_prints_the_table(tmp_path):
     from click.testing import CliRunner
 
-    from cli.main import cli
+    from softsim.cli.main import cli
 
     out = tmp_path / "report"
     result = CliRunner().invoke(cli, ["verify", "--quick", "--case", "traction", "--model", "linear", "--threads", "1",
@@ -301,7 +301,7 @@ def test_cli_verify_runs_a_case_and_prints_the_table(tmp_path):
 def test_cli_verify_refuses_an_unknown_case_in_one_line(tmp_path):
     from click.testing import CliRunner
 
-    from cli.main import cli
+    from softsim.cli.main import cli
 
     result = CliRunner().invoke(cli, ["verify", "--case", "nonsense", "-o", str(tmp_path)])
     assert result.exit_code != 0 and "nonsense" in result.output
@@ -328,3 +328,23 @@ def test_a_report_re_renders_from_its_table(report, tmp_path):
     again = write_report(tmp_path, rows, quick=True, plot=False)
     assert again.csv_path.read_text() == report.csv_path.read_text()
     assert again.budgets == report.budgets
+
+
+def test_cli_replot_redraws_from_the_table_without_running(report, tmp_path):
+    import shutil
+
+    from click.testing import CliRunner
+
+    from softsim.cli.main import cli
+
+    copy = tmp_path / "copy"
+    shutil.copytree(report.out_dir, copy)
+    for png in copy.glob("*.png"):
+        png.unlink()
+    result = CliRunner().invoke(cli, ["verify", "--replot", "-o", str(copy)])
+    assert result.exit_code == 0, result.output
+    assert len(list(copy.glob("verify_*.png"))) == len(CASES)
+    assert (copy / "verify.csv").read_text() == report.csv_path.read_text()
+    assert "Quick run" in (copy / "verify.md").read_text()
+    missing = CliRunner().invoke(cli, ["verify", "--replot", "-o", str(tmp_path / "nothing")])
+    assert missing.exit_code != 0 and "verify.csv" in missing.output

@@ -18,6 +18,7 @@ import csv
 import math
 import os
 import platform
+import re
 import time as _time
 from dataclasses import dataclass
 from pathlib import Path
@@ -190,7 +191,7 @@ PLOT_FLOOR = 1e-17
 def plot_case(case, rows, path):
     """Error against wall time for one case (one panel per quantity), PNG at ``path``."""
     Figure, FigureCanvasAgg = _matplotlib()
-    from matplotlib.ticker import NullFormatter
+    from matplotlib.ticker import LogFormatterSciNotation, LogLocator, NullFormatter
 
     quantities = []
     for r in rows:
@@ -237,6 +238,10 @@ def plot_case(case, rows, path):
                             va="bottom", fontsize=8, color="0.4")
         ax.set_xscale("log")
         ax.set_yscale("log")
+        decades = math.log10(max(times) / min(times)) if min(times) > 0.0 else 9.0
+        if decades < 2.5:                 # short ranges: label 1, 2, 5 x 10^k, not only the powers of ten
+            ax.xaxis.set_major_locator(LogLocator(base=10.0, subs=(1.0, 2.0, 5.0)))
+            ax.xaxis.set_major_formatter(LogFormatterSciNotation(labelOnlyBase=False))
         ax.xaxis.set_minor_formatter(NullFormatter())
         low, high = min(errors), max(errors)
         if high < 30.0 * low:             # at least three decades: round-off noise must not look like a trend
@@ -413,7 +418,7 @@ def _load():
     return os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
 
 
-def write_report(out_dir, rows, quick, plot=True, machine="this machine", started=None):
+def write_report(out_dir, rows, quick, plot=True, machine="this machine", started=None, wall_time_s=None):
     """Write ``verify.csv``, the plots and ``verify.md`` of ``rows`` into ``out_dir``; a ``VerifyReport``.
 
     Also re-renders a report from its table: ``write_report(dir, read_csv(dir / "verify.csv"), quick)``.
@@ -434,10 +439,33 @@ def write_report(out_dir, rows, quick, plot=True, machine="this machine", starte
         except MissingDependencyError:
             plot_paths = {}
             plot_note = f"No plots: matplotlib is not installed ({PLOT_EXTRA} adds them)."
-    wall = _time.perf_counter() - started if started is not None else sum(r.wall_time_s for r in rows)
+    if wall_time_s is not None:
+        wall = wall_time_s
+    else:
+        wall = _time.perf_counter() - started if started is not None else sum(r.wall_time_s for r in rows)
     summary = write_summary(out_dir / "verify.md", rows, quick, budgets, plot_paths, plot_note, machine, wall, names)
     return VerifyReport(out_dir=out_dir, quick=quick, rows=rows, csv_path=csv_path, summary_path=summary,
                         plot_paths=plot_paths, plot_note=plot_note, budgets=budgets, wall_time_s=wall)
+
+
+def replot_report(out_dir, quick=False):
+    """Redraw the plots and ``verify.md`` of the report in ``out_dir`` from its ``verify.csv``
+    (nothing runs); the machine line of the old ``verify.md`` is kept.  ``ConfigError`` without a table."""
+    out_dir = Path(out_dir)
+    table = out_dir / "verify.csv"
+    if not table.is_file():
+        raise ConfigError(f"--replot: no verify.csv in '{out_dir}'; run softsim verify -o {out_dir} first")
+    machine, wall = "the machine of the original run", None
+    summary = out_dir / "verify.md"
+    if summary.is_file():
+        for line in summary.read_text().splitlines():
+            if "Wall times count" in line and ", on " in line:
+                machine = line.split(", on ", 1)[1].split("; other work")[0]
+                quick = line.startswith("Quick")
+                found = re.search(r"([0-9.]+) s in all", line)
+                wall = float(found.group(1)) if found else None
+                break
+    return write_report(out_dir, read_csv(table), quick, machine=machine, wall_time_s=wall)
 
 
 def read_csv(path):
@@ -459,4 +487,4 @@ def read_csv(path):
 
 
 __all__ = ["BUDGETS", "COLUMNS", "VerifyReport", "budget_answers", "fitted_orders", "format_table", "pareto_front",
-           "plot_case", "read_csv", "verify_report", "write_csv", "write_report", "write_summary"]
+           "plot_case", "read_csv", "replot_report", "verify_report", "write_csv", "write_report", "write_summary"]
