@@ -389,9 +389,10 @@ def run_sweep(runs, output_dir, client, shared_dir=False, force=False, numba_thr
                                    pure=False, retries=0)
             futures[future] = run
         for future in distributed.as_completed(list(futures)) if futures else ():
-            run = futures[future]
+            run = futures.pop(future)   # released once read: a run's bytes leave the worker's memory
             try:
                 outcome = future.result()
+                future.release()
                 error = outcome["error"]
                 for message in outcome["warnings"]:
                     log.warning("run %d (%s): %s", run.index + 1, run.name, message)
