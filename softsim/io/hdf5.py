@@ -178,14 +178,13 @@ class RunWriter:
         return self.file["frames/time"].shape[0]
 
     def append_frame(self, time, step, points, velocities, energy=None, resume_state=None, fields=None):
-        """Append one frame and the resume state, then flush.
+        """Append one frame and the resume state, then flush: the file on disk changes only there.
 
         points, velocities: (n, 3) [m], [m/s] in the user's order; energy: dict of ENERGY_TERMS [J];
-        resume_state: optional dict of further arrays (stored as ``state/`` datasets) and numbers
-        (``state/`` attributes) a resume needs; fields: ``{name: array}`` of the other fields asked
-        for (``frames/<name>``), vertex fields in the user's vertex order, tet fields in ``mesh/tets`` order.
-        ``frames/time`` grows last of the frame datasets, so its length counts only frames whose data
-        is in place; ``state/`` is written after it.
+        resume_state: optional dict of further arrays (datasets) and numbers (attributes) a resume
+        needs, stored with positions and velocities in the ``state/`` slot not written last time;
+        fields: ``{name: array}`` of the other fields asked for (``frames/<name>``), vertex fields in
+        the user's vertex order, tet fields in ``mesh/tets`` order.
         """
         k = self.frame_count
         # HDF5 cannot be trusted after a failed write (its error paths may even crash), so a disk
@@ -223,8 +222,7 @@ class RunWriter:
             _append(frames[name], k, value)
         _append(frames["time"], k, time)
         crash_point("after_time", k)
-        # The resume state follows only a complete frame (never ahead of frames/time).
-        # Two slots, written in turn: the one written now is not the one the last flush called
+        # The resume state: two slots, written in turn: the one written now is not the one the last flush called
         # current, so a kill before the next flush (HDF5 may put raw data on disk before the
         # metadata that describes it) leaves the current slot intact; a checksum, stored with
         # the step, tells an intact slot from a torn one.
