@@ -21,7 +21,7 @@ import numpy as np
 
 from ..kernels.energy import elastic_energy, gravity_energy, kinetic_energy
 from ..kernels.forces import elastic_forces
-from ..materials.models import MODEL_IDS, ROTATION_INVARIANT
+from ..materials.models import MODEL_IDS, ROTATION_INVARIANT, model_lame_parameters
 from . import references as ref
 from .driver import Run, face_mask, tet_deformation_gradients, unique_edges
 
@@ -352,7 +352,8 @@ class Traction:
 
 
 def run_traction(p=Traction(), quick=False, models=MODELS, mutate=None, progress=None):
-    """Elongation ``sigma L / E`` and lateral contraction ``nu sigma w / E``."""
+    """Elongation ``sigma L / E`` and lateral contraction ``nu sigma w / E`` (small strain), and both
+    against the exact homogeneous stretch of each material law (``references.uniaxial_stretches``)."""
     case = "traction"
     L, W = p.length, p.width
     c = ref.bar_wave_speed(p.youngs_modulus, p.density)
@@ -398,6 +399,15 @@ def run_traction(p=Traction(), quick=False, models=MODELS, mutate=None, progress
             _report(progress, rows[-1])
             rows.append(_row(case, "contraction", run, ladder, refinement, contraction, c_ref, "nu sigma w / E",
                              f"{note}; sigma/E = {load:g}{extra}", uncertainty=finite))
+            # Against the law's own exact homogeneous stretch: what is left is the relaxation only.
+            model = run.scene.material.model
+            lam, mu = model_lame_parameters(model, p.youngs_modulus, p.poissons_ratio)
+            a, b = ref.uniaxial_stretches(model, lam, mu, sigma)
+            exact = f"{note}; sigma/E = {load:g}; F = diag({a:.10g}, {b:.10g}, {b:.10g})"
+            rows.append(_row(case, "elongation, exact stretch", run, ladder, refinement, elongation, (a - 1.0) * L,
+                             "the law's homogeneous stretch", exact))
+            rows.append(_row(case, "contraction, exact stretch", run, ladder, refinement, contraction, (1.0 - b) * W,
+                             "the law's homogeneous stretch", exact))
 
         for load in _rungs(loads, quick, model, p):
             add("load", load, p.element_size, load)

@@ -156,3 +156,57 @@ def fitted_order(parameters, errors):
     x = np.log([p for p, _ in pairs])
     y = np.log([e for _, e in pairs])
     return float(np.polyfit(x, y, 1)[0])
+
+
+# ---------------------------------------------------------------------------------------------
+# The exact homogeneous uniaxial stretch of each material law (NumPy, independent of the kernels)
+
+
+def _diagonal_first_piola(model, a, b, lam, mu):
+    """``(P11, P22)`` [Pa] of ``F = diag(a, b, b)`` for material law ``model`` with its Lame
+    parameters ``lam``, ``mu`` (as ``softsim.materials.models.model_lame_parameters`` gives them)."""
+    if model == "linear":
+        trace = (a - 1.0) + 2.0 * (b - 1.0)
+        return lam * trace + 2.0 * mu * (a - 1.0), lam * trace + 2.0 * mu * (b - 1.0)
+    if model == "stvk":
+        e1, e2 = 0.5 * (a * a - 1.0), 0.5 * (b * b - 1.0)
+        trace = e1 + 2.0 * e2
+        return a * (lam * trace + 2.0 * mu * e1), b * (lam * trace + 2.0 * mu * e2)
+    if model == "corotated":            # R = I for a diagonal F with positive entries
+        trace = (a - 1.0) + 2.0 * (b - 1.0)
+        return 2.0 * mu * (a - 1.0) + lam * trace, 2.0 * mu * (b - 1.0) + lam * trace
+    if model == "neohookean":           # Smith et al. 2018, P = mu (1 - 1/(Ic + 1)) F + lam (J - alpha) cof F
+        ic = a * a + 2.0 * b * b
+        J = a * b * b
+        alpha = 1.0 + 0.75 * mu / lam
+        scale = mu * (1.0 - 1.0 / (ic + 1.0))
+        return scale * a + lam * (J - alpha) * b * b, scale * b + lam * (J - alpha) * a * b
+    raise ValueError(f"unknown material model {model!r}")
+
+
+def uniaxial_stretches(model, lam, mu, stress):
+    """Axial and lateral stretches ``(a, b)`` of the homogeneous state ``F = diag(a, b, b)`` with
+    nominal stress ``P11 = stress``, ``P22 = P33 = 0`` under material law ``model`` (Newton on the
+    two equations, from the small-strain answer)."""
+    E = mu * (3.0 * lam + 2.0 * mu) / (lam + mu)
+    nu = lam / (2.0 * (lam + mu))
+    if model == "neohookean":       # small strain of the remapped constants: undo Smith's remapping
+        mu0 = 0.75 * mu
+        lam0 = lam - 5.0 * mu0 / 6.0
+        E, nu = mu0 * (3.0 * lam0 + 2.0 * mu0) / (lam0 + mu0), lam0 / (2.0 * (lam0 + mu0))
+    x = np.array([1.0 + stress / E, 1.0 - nu * stress / E])
+    scale = max(abs(stress), 1e-300)
+    for _ in range(60):
+        residual = np.array(_diagonal_first_piola(model, x[0], x[1], lam, mu)) - np.array([stress, 0.0])
+        if np.abs(residual).max() <= 1e-14 * scale:
+            break
+        jacobian = np.empty((2, 2))
+        for k in range(2):
+            h = 1e-7 * x[k]
+            up, down = x.copy(), x.copy()
+            up[k] += h
+            down[k] -= h
+            jacobian[:, k] = (np.array(_diagonal_first_piola(model, *up, lam, mu))
+                              - np.array(_diagonal_first_piola(model, *down, lam, mu))) / (2.0 * h)
+        x = x - np.linalg.solve(jacobian, residual)
+    return float(x[0]), float(x[1])
