@@ -6,7 +6,8 @@ Measures, on this machine: throughput against tet count (10k to 2M) with the pee
 Warp CPU, when ``pip install ".[peers]"`` is installed) and the STREAM-triad bandwidth bound
 interleaved in one process; 1 against 2 threads; each material model; each optional feature; the
 time outside the kernels at a frame interval; peak memory per tet; start-up with a cold and a warm
-JIT cache; the Numba threading layers.  Peers are first checked to compute the same positions.
+JIT cache; the Numba threading layers; packed SIMD instructions in the compiled lane loops.
+Peers are first checked to compute the same positions.
 Writes ``results.csv``, ``results.md`` and ``throughput.png`` into the output folder.
 Numbers move with the machine and its load: compare only within one run.
 """
@@ -32,7 +33,7 @@ def main(argv=None):
     parser.add_argument("--repeats", type=int, help="interleaved rounds per measurement (default 7, quick 3)")
     parser.add_argument("--sections", nargs="+", help="run only these sections",
                         choices=["check", "throughput", "threads", "models", "features", "overhead", "memory",
-                                 "startup", "layers", "precision"])
+                                 "startup", "layers", "simd", "precision"])
     args = parser.parse_args(argv)
 
     quick = args.quick
@@ -61,6 +62,7 @@ def main(argv=None):
         ("memory", lambda: suite.memory(100_000 if quick else 1_000_000, threads)),
         ("startup", lambda: suite.startup(10_000)),
         ("layers", lambda: suite.threading_layers(mid, seconds, 1 if quick else 3)),
+        ("simd", suite.simd),
         ("precision", suite.precision),
     ]
     for name, run in sections:

@@ -3,6 +3,9 @@
     python -m benchmarks.probe memory TETS      peak RSS of preparing and stepping a beam, with a breakdown
     python -m benchmarks.probe startup TETS     seconds from process start to the first step done
     python -m benchmarks.probe layer TETS SECONDS   M tet-steps/s of the beam on this process's threading layer
+    python -m benchmarks.probe asm              double-precision arithmetic instructions of each model's lane loop,
+                                                by vector width (run with an empty NUMBA_CACHE_DIR: Numba
+                                                shows no machine code for cached functions)
 """
 
 import json
@@ -70,12 +73,39 @@ def layer(tets, seconds):
     return dict(layer=numba.threading_layer(), threads=numba.get_num_threads(), rates=rates)
 
 
+def asm():
+    import re
+
+    import numpy as np
+
+    from softsim.kernels import blocked
+
+    buf = np.zeros(blocked.ROWS * blocked.BLOCK)
+    buf[: 9 * blocked.BLOCK] = 0.1
+    out = {}
+    for name in ("linear", "stvk", "corotated", "neohookean"):
+        fn = getattr(blocked, f"{name}_block")
+        fn(buf, 1.0, 1.0)
+        code = "\n".join(fn.inspect_asm().values())
+        counts = {}
+        for m in re.finditer(r"^\s+(v(?:fn?m(?:add|sub)\w*|mul|add|sub|div|sqrt)(?:pd|sd|\d*pd|\d*sd))\s+([^\n]*)", code, re.M):
+            op, operands = m.group(1), m.group(2)
+            width = "zmm" if "zmm" in operands else "ymm" if "ymm" in operands else "xmm"
+            kind = "scalar" if op.endswith("sd") else f"packed {width}"
+            key = f"{'fma' if 'fm' in op else 'arith'} {kind}"
+            counts[key] = counts.get(key, 0) + 1
+        out[name] = counts
+    return out
+
+
 def main(argv):
     kind, *args = argv
     if kind == "memory":
         out = memory(int(args[0]))
     elif kind == "startup":
         out = startup(int(args[0]))
+    elif kind == "asm":
+        out = asm()
     elif kind == "layer":
         out = layer(int(args[0]), float(args[1]))
     else:

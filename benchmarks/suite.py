@@ -255,5 +255,20 @@ def threading_layers(target, seconds, rounds):
     return rows
 
 
+def simd():
+    """Whether each model's lane loop compiled to packed SIMD arithmetic (and which width)."""
+    with tempfile.TemporaryDirectory() as cache:
+        result = _probe(["asm"], {"NUMBA_CACHE_DIR": cache})
+    rows = []
+    for name, counts in result.items():
+        packed = sum(v for k, v in counts.items() if "packed" in k)
+        total = sum(counts.values())
+        text = ", ".join(f"{v} {k}" for k, v in sorted(counts.items(), key=lambda kv: -kv[1]))
+        log(f"  {name}: {text}")
+        rows.append(row("simd", f"{name} lane loop", runner="softsim", ratio=packed / max(total, 1),
+                        ratio_to="packed share of float64 arithmetic", note=text))
+    return rows
+
+
 def precision():
     return [row("precision", "float32", note="not implemented yet: softsim steps in float64 only")]
