@@ -149,6 +149,8 @@ def mutated_meshes(draw):
         kind = draw(st.sampled_from(["duplicate", "unreferenced", "flat", "inverted", "repeated_index",
                                      "out_of_range", "non_finite", "scale", "mixed", "empty", "duplicate_tet"]))
         picks = draw(st.lists(st.integers(0, max(m - 1, 0)), min_size=1, max_size=4)) if m else []
+        if m and (tets.min() < 0 or tets.max() >= n):
+            continue       # an earlier mutation broke the indices: nothing more to build on them
         if kind == "duplicate" and m:        # split vertices: copies that some tets use instead
             for t in picks:
                 corner = draw(st.integers(0, 3))

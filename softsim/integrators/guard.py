@@ -173,6 +173,9 @@ class FrameGuard:
         self.stretch_seen[:] = self.stretch
         safe = EIGEN_SAFETY * exact_stable_step(self.model, state.x, iterations=80, tol=1e-2)
         where = self._where(time, state.step)
+        if not safe > 0.0:
+            raise SimulationError(f"the simulation blew up {where}: its elastic forces are no longer finite; "
+                                  f"try a smaller time.dt (this run used {self.dt:.3g} s)")
         if self.dt <= safe * (1.0 + 1e-9):
             self.substeps = 1
         elif self.policy == "refuse":

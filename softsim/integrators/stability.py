@@ -129,6 +129,10 @@ class _SymmetricOperator:
         return self.scale * Ku + self.diagonal * y
 
 
+class _NotFinite(Exception):
+    """The operator gave a non-finite vector (the state's forces overflow)."""
+
+
 def _largest_ritz(alpha, beta):
     """Largest eigenvalue and its eigenvector of the symmetric tridiagonal (alpha, beta[:-1])."""
     k = len(alpha)
@@ -204,9 +208,15 @@ def frequency_analysis(model, x=None, iterations=400, tol=1e-4, cycle=60):
     v0 = np.where(free, rng.standard_normal(3 * n), 0.0)
 
     def apply(flat):
-        return op.apply(flat.reshape(n, 3)).ravel()
+        out = op.apply(flat.reshape(n, 3)).ravel()
+        if not np.isfinite(out).all():
+            raise _NotFinite
+        return out
 
-    theta, residual, matvecs, converged, vector = _lanczos_largest(apply, v0, dimension, iterations, tol, cycle)
+    try:
+        theta, residual, matvecs, converged, vector = _lanczos_largest(apply, v0, dimension, iterations, tol, cycle)
+    except _NotFinite:          # forces overflow at x: no finite step is stable there
+        return FrequencyEstimate(math.inf, 0.0, 0, True, np.zeros((n, 3)))
     return FrequencyEstimate(lambda_max=float(theta), residual=float(residual), matvecs=matvecs,
                              converged=bool(converged), mode=vector.reshape(n, 3))
 
