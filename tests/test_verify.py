@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from softsim.verify import references as ref
-from softsim.verify.cases import CASES, AxialVibration, Cantilever, Energy, Patch, Traction
+from softsim.verify.cases import CASES, AxialVibration, Cantilever, Energy, Traction
 from softsim.verify.driver import with_lame, with_rest_state
 from softsim.verify.report import COLUMNS, pareto_front, verify_report
 

@@ -297,13 +297,15 @@ CASE_NOTES = {
         "from below at a pre-asymptotic rate (O(h^2) is the asymptotic rate of smooth problems in "
         "displacement). The clamped 3D beam is about 1 % softer than Timoshenko's beam (the clamp's "
         "Poisson constraint and end effects), so errors near that floor are measured against the "
-        "Richardson-extrapolated limit of the element-size ladder instead; the reference column says which. "
+        "Richardson-extrapolated limit of the element-size ladder instead, where the ladder knows the 3D "
+        "answer better than beam theory does (the limit's spread below its distance from Timoshenko); "
+        "the reference column says which was used, and reference_uncertainty in verify.csv how good it is. "
         "dt does not change a static answer, only what it costs (dt: auto throughout)."),
     "axial-vibration": (
         "nu = 0 makes the continuous 3D bar exactly the 1D bar (no lateral strain). Lumped-mass linear "
         "elements lengthen the period by O(h^2) (the 1D dispersion (kh)^2/24, plus the shear coupling of "
-        "a cross-section's vertices in the 5-tet cells); symplectic Euler shortens it by O((omega dt)^2); with dt: auto, "
-        "dt shrinks with h, so both are O(h^2). For this lowest mode dt never dominates: the stable dt "
+        "a cross-section's vertices in the 5-tet cells); symplectic Euler shortens it by O((omega dt)^2); "
+        "with dt: auto, dt shrinks with h, so both are O(h^2). For this lowest mode dt never dominates: the stable dt "
         "is set by the highest mode, omega_1 dt ~ h / L, and the dt ladder only moves the error by a "
         "fraction (see the order from successive differences: 2)."),
     "traction": (
@@ -409,15 +411,18 @@ def verify_report(out_dir, quick=False, cases=None, models=MODELS, plot=True, pr
         raise ConfigError(f"unknown material model {', '.join(bad)} (known: {', '.join(MODELS)})")
     import numba
 
-    if threads is not None:
-        if not 1 <= threads <= numba.config.NUMBA_NUM_THREADS:
-            raise ConfigError(f"threads = {threads}: must be between 1 and {numba.config.NUMBA_NUM_THREADS}")
-        numba.set_num_threads(threads)
-    load_start = _load()
-    rows = []
-    for name in names:
-        rows += CASES[name](quick=quick, models=models, mutate=mutate, progress=progress)
-    machine = _machine_line(numba.get_num_threads(), (load_start, _load()))
+    if threads is not None and not 1 <= threads <= numba.config.NUMBA_NUM_THREADS:
+        raise ConfigError(f"threads = {threads}: must be between 1 and {numba.config.NUMBA_NUM_THREADS}")
+    previous = numba.get_num_threads()
+    numba.set_num_threads(threads or previous)
+    try:
+        load_start = _load()
+        rows = []
+        for name in names:
+            rows += CASES[name](quick=quick, models=models, mutate=mutate, progress=progress)
+        machine = _machine_line(numba.get_num_threads(), (load_start, _load()))
+    finally:
+        numba.set_num_threads(previous)      # the caller's setting again
     return write_report(out_dir, rows, quick, plot=plot, machine=machine, started=started)
 
 
