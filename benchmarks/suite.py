@@ -29,7 +29,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 def row(section, case, tets=None, runner="softsim", threads=None, rate=None, ratio=None, ratio_to="", note=""):
     return dict(section=section, case=case, tets=tets, runner=runner, threads=threads,
-                rate=None if rate is None else round(rate, 2), ratio=None if ratio is None else round(ratio, 3),
+                rate=None if rate is None else round(rate, 2), ratio=None if ratio is None else float(f"{ratio:.4g}"),
                 ratio_to=ratio_to, note=note)
 
 
@@ -57,7 +57,7 @@ def peer_check(tets, threads):
         peer.run(CHECK_STEPS)
         diff = float(np.abs(peer.positions() - reference).max())
         rows.append(row("check", "same answer", sim.tet_count, name, ratio=diff / displacement, ratio_to="max displacement",
-                        note=f"max |x - x_softsim| = {diff:.2e} m after {CHECK_STEPS} steps, float64 "
+                        note=f"max abs(x - x_softsim) = {diff:.2e} m after {CHECK_STEPS} steps, float64 "
                              f"(displacement {displacement:.2e} m)"))
         log(f"  check {name}: {diff:.2e} m of {displacement:.2e} m")
     return rows
