@@ -18,11 +18,13 @@ import numba
 
 JIT_OPTIONS = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
 
-# Threading layer, chosen by measurement (``python -m benchmarks --sections layers``): on a 2-core
-# machine shared with other processes, GNU OpenMP's spinning barrier ran softsim's step 10x slower
-# than Numba's own workqueue (0.9 against 9.2 M tet-steps/s at 30k tets, alternating processes);
-# TBB, where its library loads, was as fast as workqueue and is also safe to call from several
-# Python threads at once.  NUMBA_THREADING_LAYER in the environment still overrides this.
+# Threading layer, chosen by measurement (``python -m benchmarks --sections layers``, one process
+# per layer, alternating).  On the 2-core machine shared with other busy processes, GNU OpenMP's
+# spinning barrier made the step 3x slower than Numba's own workqueue (11 against 32 M tet-steps/s
+# at 100k tets, medians of 9); in a quiet moment OpenMP was faster (47 against 28, one round).
+# workqueue never collapses, so it is the default; TBB, where its library loads, behaves like
+# workqueue and is also safe to call from several Python threads at once.  NUMBA_THREADING_LAYER
+# in the environment still overrides this.
 numba.config.THREADING_LAYER_PRIORITY = ["tbb", "workqueue", "omp"]
 
 _PACKAGE_DIR = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
