@@ -55,7 +55,8 @@ def test_example_runs(path, tmp_path, monkeypatch):
         assert f["frames/points"].shape == (k, n, 3)
         arrays = {name: f[name][:] for name in
                   ("frames/points", "frames/velocities", "frames/energy/kinetic", "frames/energy/elastic",
-                   "frames/energy/gravity", "state/positions", "state/velocities")}
+                   "frames/energy/gravity", "state/a/positions", "state/a/velocities",
+                   "state/b/positions", "state/b/velocities")}
         for name, values in arrays.items():
             assert np.isfinite(values).all(), name
         points = arrays["frames/points"]
