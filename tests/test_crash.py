@@ -26,10 +26,10 @@ SCENE = """\
 mesh: {shape: box, size: [0.2, 0.05, 0.05], element_size: 0.025, structured: true}
 material: {model: stvk, youngs_modulus: 1.0e6, poissons_ratio: 0.3, density: 1000.0}
 fixed: [{min: [-1.0e-6, -1, -1], max: [1.0e-6, 1, 1]}]
-time: {duration: 0.2}
+time: {duration: 0.4}
 output: {frame_interval: 0.002, fields: [velocities, energy]}
 """
-FRAMES = 101       # 0.2 s / 0.002 s + the initial frame
+FRAMES = 201       # 0.4 s / 0.002 s + the initial frame
 
 # (hook point, frame): the frames completed before the kill are those before `frame`, plus
 # `frame` itself once it has been flushed.
@@ -169,15 +169,17 @@ def kill_at_random(folder, seed):
     """Start a run and SIGKILL it at a random moment of its life (start-up included)."""
     name = f"random-{seed}.h5"
     rng = random.Random(seed)
+    with h5py.File(folder / "reference.h5") as f:      # how long the frames take on this machine
+        writing = float(f.attrs["wall_time_s"])
     process = softsim(["run", "scene.yaml", "-o", name], folder)
     started = time.monotonic()
     # Most kills land while frames are written: wait for the file, then a random part of the run.
     if rng.random() < 0.8:
         while not (folder / name).exists() and process.poll() is None and time.monotonic() - started < 120:
-            time.sleep(0.005)
+            time.sleep(0.001)
+        time.sleep(rng.uniform(0.0, writing))
+    else:       # during start-up: before the output file exists, or while it is being made
         time.sleep(rng.uniform(0.0, 1.0))
-    else:
-        time.sleep(rng.uniform(0.0, 3.0))
     process.send_signal(signal.SIGKILL)
     process.communicate()
     return name, process.returncode
