@@ -177,7 +177,7 @@ def kill_at_random(folder, seed):
     if rng.random() < 0.8:
         while not (folder / name).exists() and process.poll() is None and time.monotonic() - started < 120:
             time.sleep(0.001)
-        time.sleep(rng.uniform(0.0, writing))
+        time.sleep(rng.uniform(0.0, 0.7 * writing))     # runs side by side vary: stay inside
     else:       # during start-up: before the output file exists, or while it is being made
         time.sleep(rng.uniform(0.0, 1.0))
     process.send_signal(signal.SIGKILL)
@@ -190,6 +190,7 @@ def test_kills_at_random_moments_leave_readable_files(workdir):
     with ThreadPoolExecutor(2) as pool:
         outcomes = list(pool.map(lambda seed: kill_at_random(workdir, seed), range(RANDOM_KILLS)))
     killed_mid_run = 0
+    seen = []
     for name, code in outcomes:
         path = workdir / name
         if code == 0:          # finished before the kill: a complete file
@@ -202,8 +203,9 @@ def test_kills_at_random_moments_leave_readable_files(workdir):
                 complete = f.attrs["status"] == "complete"
             frames = check_left_file(path, FRAMES if complete else None, complete=complete)
             killed_mid_run += 0 < frames < FRAMES
+            seen.append(frames)
             check_xdmf_opens(path)
-    assert killed_mid_run >= RANDOM_KILLS // 2, "the random kills missed the frame-writing phase"
+    assert killed_mid_run >= RANDOM_KILLS // 2, f"the random kills missed the frame-writing phase: {seen}"
 
 
 
