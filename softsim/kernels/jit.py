@@ -18,14 +18,17 @@ import numba
 
 JIT_OPTIONS = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
 
-# Threading layer, chosen by measurement (``python -m benchmarks --sections layers``, one process
-# per layer, alternating).  On the 2-core machine shared with other busy processes, GNU OpenMP's
-# spinning barrier made the step 3x slower than Numba's own workqueue (11 against 32 M tet-steps/s
-# at 100k tets, medians of 9); in a quiet moment OpenMP was faster (47 against 28, one round).
-# workqueue never collapses, so it is the default; TBB, where its library loads, behaves like
-# workqueue and is also safe to call from several Python threads at once.  NUMBA_THREADING_LAYER
-# in the environment still overrides this.
-numba.config.THREADING_LAYER_PRIORITY = ["tbb", "workqueue", "omp"]
+# Threading layer, chosen by measurement (benchmarks/throughput.py at 100k tets, 2 threads, medians
+# of 5, M tet-steps/s; quiet machine / one core held by another process):
+#   GNU OpenMP, spinning (its default)   83 / 25
+#   GNU OpenMP, OMP_WAIT_POLICY=passive  58 / 44
+#   workqueue                            37 / 32
+# A spinning barrier collapses when another process holds a core; a passive one does not, and
+# still beats workqueue.  libgomp reads the policy when it loads (at the first parallel call), so
+# it is set here; a value already in the environment wins, as does NUMBA_THREADING_LAYER.  Where
+# libgomp is missing, Numba falls back to TBB, then workqueue.
+os.environ.setdefault("OMP_WAIT_POLICY", "passive")
+numba.config.THREADING_LAYER_PRIORITY = ["omp", "tbb", "workqueue"]
 
 _PACKAGE_DIR = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
