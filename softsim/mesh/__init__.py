@@ -43,9 +43,10 @@ class TetMesh:
 MAX_TETS = 50_000_000
 
 
-# Peak memory per tet while gmsh meshes and softsim builds the model [bytes]: measured 1.25 kB
-# (a 169k-tet gmsh box peaked at 381 MB, about 170 MB of it the interpreter and libraries).
-MESH_PEAK_BYTES_PER_TET = 1500
+# Peak memory per tet while softsim meshes and prepares a scene [bytes]: measured 1.25 kB for a
+# 169k-tet gmsh box (381 MB peak, ~170 MB of it the interpreter and libraries) and 3.4 kB for a
+# 1M-tet structured beam (3285 MiB peak, ``python -m benchmarks --sections memory``).
+MESH_PEAK_BYTES_PER_TET = 3500
 
 
 def available_memory_bytes():
