@@ -108,9 +108,10 @@ def choose_dt(scene, model, dt_estimate):
     return dt / substeps, safe, substeps
 
 
-def prepare(scene):
-    """Mesh the scene, build its model and time plan; raises ``SoftsimError`` on bad input."""
-    mesh = build_mesh(scene.mesh)
+def prepare(scene, mesh=None):
+    """Mesh the scene (unless ``mesh``, a ``TetMesh`` already built from ``scene.mesh``, is given),
+    build its model and time plan; raises ``SoftsimError`` on bad input."""
+    mesh = build_mesh(scene.mesh) if mesh is None else mesh
     model = build_model(scene, mesh)
     material = scene.material
     wave_speed = dilatational_wave_speed(material.youngs_modulus, material.poissons_ratio, material.density)
@@ -365,14 +366,21 @@ def check_resumable(scene, output_path):
                               f"start the run again with --overwrite")
     if not has_state:
         raise SimulationError(f"--resume: '{output_path}' has no intact state/ to resume from")
-    stored = yaml.safe_load(stored_yaml)
-    current = yaml.safe_load(scene_to_yaml(scene))
-    for d in (stored, current):
-        d.get("output", {}).pop("path", None)
-    if stored != current:
-        key = _first_difference(stored, current)
+    key = scene_difference(stored_yaml, scene)
+    if key is not None:
         raise SimulationError(f"--resume: the scene changed since '{output_path}' was written ({key}); "
                               f"resuming it would splice two different runs")
+
+
+def scene_difference(stored_yaml, scene):
+    """``None`` if ``scene`` equals the scene stored in a run file (its ``config`` YAML), all but
+    ``output.path``; else the first difference as ``dotted.key: old -> new`` (for messages)."""
+    import yaml
+
+    stored, current = yaml.safe_load(stored_yaml), yaml.safe_load(scene_to_yaml(scene))
+    for d in (stored, current):
+        d.get("output", {}).pop("path", None)
+    return None if stored == current else _first_difference(stored, current)
 
 
 def _first_difference(a, b, prefix=""):

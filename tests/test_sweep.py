@@ -22,7 +22,7 @@ from softsim.errors import ConfigError, MissingDependencyError, SimulationError
 from softsim.mesh import build_mesh
 from softsim.simulation import prepare, simulate
 from softsim.sweep import expand_sweep, load_sweep, parse_sweep, plot_summary, run_sweep, tip_vertices
-from softsim.sweep.runner import (_prepare_with_mesh, build_meshes, import_distributed, local_client, plan_runs,
+from softsim.sweep.runner import (build_meshes, import_distributed, local_client, plan_runs,
                                   write_summary)
 from softsim.sweep.spec import format_value, run_name
 
@@ -169,7 +169,7 @@ def test_dry_run_lists_runs_and_names(tmp_path):
 
 def test_prepare_with_a_shared_mesh_matches_prepare(tmp_path):
     scene = parse_scene(dict(BAR, time={"duration": 0.006, "dt": 1.2e-3}), tmp_path)
-    mine, reference = _prepare_with_mesh(scene, build_mesh(scene.mesh)), prepare(scene)
+    mine, reference = prepare(scene, build_mesh(scene.mesh)), prepare(scene)
     assert mine.plan == reference.plan and mine.substeps == reference.substeps > 1
     assert (mine.dt_estimate, mine.safe_dt, mine.wave_speed) == \
         (reference.dt_estimate, reference.safe_dt, reference.wave_speed)

@@ -114,16 +114,13 @@ def run_metrics(path):
     return {column: row[column] for column in METRIC_COLUMNS}
 
 
-def stored_config(path):
-    """The scene stored in the run file ``path`` (a dict, ``output.path`` left out), or None if unreadable."""
+def stored_config_yaml(path):
+    """The scene stored in the run file ``path`` (its ``config`` YAML text), or None if unreadable."""
     try:
         with h5py.File(path, "r") as f:
-            config = yaml.safe_load(str(f.attrs["config"]))
-    except (OSError, KeyError, yaml.YAMLError):
+            return str(f.attrs["config"])
+    except (OSError, KeyError):
         return None
-    if isinstance(config, dict):
-        config.get("output", {}).pop("path", None)
-    return config
 
 
 def stored_status(path):

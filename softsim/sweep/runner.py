@@ -25,10 +25,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Optional
 
-from ..config import scene_to_yaml
 from ..errors import MissingDependencyError, SimulationError, SoftsimError
 from ..io.hdf5 import xdmf_path_for
-from .metrics import METRIC_COLUMNS, run_metrics, stored_config, stored_status
+from .metrics import METRIC_COLUMNS, run_metrics, stored_config_yaml, stored_status
 from .spec import Run
 
 log = logging.getLogger("softsim")
@@ -74,29 +73,6 @@ def local_layout(run_count, workers=None, cores=None):
 # Worker side
 
 
-def _prepare_with_mesh(scene, mesh):
-    """``simulation.prepare(scene)`` for an already built mesh (the sweep builds each mesh once).
-
-    Mirrors ``prepare`` step for step (``tests/test_sweep.py`` checks they agree); it would
-    become ``prepare(scene, mesh=mesh)`` if ``prepare`` took a mesh.
-    """
-    from ..model import build_model
-    from ..simulation import Prepared, choose_dt, stable_dt_estimate
-    from ..integrators.timestep import dilatational_wave_speed, plan_time
-
-    model = build_model(scene, mesh)
-    material = scene.material
-    wave_speed = dilatational_wave_speed(material.youngs_modulus, material.poissons_ratio, material.density)
-    dt_estimate = stable_dt_estimate(model)
-    dt, safe_dt, substeps = choose_dt(scene, model, dt_estimate)
-    if scene.time.dt in ("auto", "exact"):
-        plan = plan_time(scene.time.duration, scene.output.frame_interval, max_dt=dt)
-    else:
-        plan = plan_time(scene.time.duration, scene.output.frame_interval, dt=dt)
-    return Prepared(scene=scene, model=model, plan=plan, dt_estimate=dt_estimate, safe_dt=safe_dt,
-                    substeps=substeps, wave_speed=wave_speed)
-
-
 def execute_run(scene, mesh, name, target_dir=None, numba_threads=None):
     """Run one sweep run on a worker; returns a dict (never raises for a failed run).
 
@@ -108,7 +84,7 @@ def execute_run(scene, mesh, name, target_dir=None, numba_threads=None):
     """
     import numba
 
-    from ..simulation import simulate
+    from ..simulation import prepare, simulate
 
     if numba_threads:
         numba.set_num_threads(max(1, min(int(numba_threads), numba.config.NUMBA_NUM_THREADS)))
@@ -120,7 +96,7 @@ def execute_run(scene, mesh, name, target_dir=None, numba_threads=None):
     log.addHandler(catcher)
     try:
         try:
-            simulate(_prepare_with_mesh(scene, mesh), path)
+            simulate(prepare(scene, mesh), path)
         except SoftsimError as exc:
             result["error"] = str(exc)
         except Exception as exc:    # a bug must not stop the other runs; the file says failed too
@@ -175,6 +151,8 @@ def plan_runs(runs, force=False):
     """
     import yaml
 
+    from ..simulation import scene_difference
+
     to_run, to_skip = [], []
     for run in runs:
         path = run.path
@@ -184,30 +162,23 @@ def plan_runs(runs, force=False):
         if path.is_dir():
             raise SimulationError(f"run {run.index + 1} ({run.name}): {path} is a directory")
         status = stored_status(path)
-        stored = stored_config(path)
+        stored = stored_config_yaml(path)
         if status is None or stored is None:
             raise SimulationError(f"run {run.index + 1} ({run.name}): {path} exists and is not a softsim run "
                                   f"file; pass --force to replace it or choose another output folder")
         if status != "complete":
             to_run.append(run)
             continue
-        current = yaml.safe_load(scene_to_yaml(run.scene))
-        current.get("output", {}).pop("path", None)
-        if stored != current:
+        try:
+            difference = scene_difference(stored, run.scene)
+        except (yaml.YAMLError, AttributeError):      # not a mapping: not a scene softsim wrote
+            difference = "config: not a scene"
+        if difference is not None:
             raise SimulationError(
                 f"run {run.index + 1} ({run.name}): {path} is complete but was written for another scene "
-                f"({_first_difference(stored, current)}); pass --force to rerun it or choose another output folder")
+                f"({difference}); pass --force to rerun it or choose another output folder")
         to_skip.append(run)
     return to_run, to_skip
-
-
-def _first_difference(a, b, prefix=""):
-    """Dotted key of the first difference between two nested mappings, with both values."""
-    if isinstance(a, dict) and isinstance(b, dict):
-        for key in sorted(set(a) | set(b)):
-            if a.get(key) != b.get(key):
-                return _first_difference(a.get(key), b.get(key), f"{prefix}{key}.")
-    return f"{prefix.rstrip('.')}: {a!r} -> {b!r}"
 
 
 def summary_row(run, metrics=None, error=None):
