@@ -100,15 +100,15 @@ def _yaml_error_message(error: yaml.YAMLError, where: str) -> str:
     return f"{where}: invalid YAML: {_one_line(error)}"
 
 
-def _read_yaml(path: Path) -> Any:
-    """Parse the scene file ``path`` with ``SceneLoader``."""
+def read_yaml(path: Path, what: str = "scene file") -> Any:
+    """Parse the YAML file ``path`` with ``SceneLoader``; ``what`` names it in errors."""
     try:
         with open(path, "rb") as stream:
             return yaml.load(stream, Loader=SceneLoader)
     except FileNotFoundError:
-        raise ConfigError(f"scene file not found: {path}") from None
+        raise ConfigError(f"{what} not found: {path}") from None
     except OSError as error:
-        raise ConfigError(f"cannot read scene file {path}: {error.strerror or error}") from None
+        raise ConfigError(f"cannot read {what} {path}: {error.strerror or error}") from None
     except yaml.YAMLError as error:
         raise ConfigError(_yaml_error_message(error, str(path))) from None
 
@@ -256,7 +256,7 @@ def load_scene(path: Union[str, Path], overrides: Iterable[str] = ()) -> Scene:
     A relative ``mesh.file`` is taken relative to the scene file's directory.
     """
     path = Path(path)
-    data = _read_yaml(path)
+    data = read_yaml(path)
     if not isinstance(data, Mapping):
         got = "an empty file" if data is None else _show(data)
         raise ConfigError(f"{path}: {_MAPPING_REQUIRED}; got {got}")

@@ -34,8 +34,8 @@ from typing import Annotated, Any, Union
 import yaml
 from pydantic import BaseModel, BeforeValidator, Field, ValidationError, model_validator
 
-from ..config import Scene, SceneLoader, Section, parse_scene
-from ..config.loader import validation_message
+from ..config import Scene, Section, parse_scene
+from ..config.loader import read_yaml, validation_message
 from ..config.schema import fail
 from ..errors import ConfigError
 
@@ -285,21 +285,6 @@ class Sweep:
         return count
 
 
-def _read(path: Path, what: str) -> Any:
-    try:
-        with open(path, "rb") as stream:
-            return yaml.load(stream, Loader=SceneLoader)
-    except FileNotFoundError:
-        raise ConfigError(f"{what} not found: {path}") from None
-    except OSError as error:
-        raise ConfigError(f"cannot read {what} {path}: {error.strerror or error}") from None
-    except yaml.YAMLError as error:
-        mark = getattr(error, "problem_mark", None)
-        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
-        problem = " ".join(str(getattr(error, "problem", None) or error).split())
-        raise ConfigError(f"{path}: invalid YAML{where}: {problem}") from None
-
-
 def parse_sweep(data: Any, base_dir: Union[str, Path] = ".", source: str = "sweep") -> Sweep:
     """Validate a raw sweep mapping; a base scene file is read relative to ``base_dir``."""
     if not isinstance(data, Mapping):
@@ -311,7 +296,7 @@ def parse_sweep(data: Any, base_dir: Union[str, Path] = ".", source: str = "swee
     base_dir = Path(base_dir).absolute()
     if isinstance(sweep_file.base, str):
         scene_path = base_dir / sweep_file.base
-        base = _read(scene_path, "base scene file")
+        base = read_yaml(scene_path, "base scene file")
         if not isinstance(base, Mapping):
             raise ConfigError(f"base = {sweep_file.base!r}: the scene file {scene_path} is not a mapping")
         base_dir = scene_path.parent
@@ -324,7 +309,7 @@ def parse_sweep(data: Any, base_dir: Union[str, Path] = ".", source: str = "swee
 def load_sweep(path: Union[str, Path]) -> Sweep:
     """Read and validate the sweep file ``path`` (``ConfigError`` with one line on any problem)."""
     path = Path(path)
-    data = _read(path, "sweep file")
+    data = read_yaml(path, "sweep file")
     if data is None:
         raise ConfigError(f"{path}: the sweep file is empty; it needs base and parameters (or zip)")
     return parse_sweep(data, path.absolute().parent, source=str(path))
