@@ -63,7 +63,8 @@ def writer_ms_per_frame(folder, node_count, frames, flush):
     tets = np.zeros((1, 4), np.int64)
     with flushing(flush):
         with hdf5.RunWriter(folder / "w.h5", points, tets, np.zeros(node_count, bool), "", 1e-3, frames,
-                            fields=("velocities",), xdmf=False) as writer:
+                            fields=("velocities",), xdmf=False, frames=frames,
+                            resume_template={"guard_substeps": 1}) as writer:
             started = time.perf_counter()
             for k in range(frames):
                 writer.append_frame(k * 1e-3, k, points, points, resume_state={"guard_substeps": 1})

@@ -20,7 +20,7 @@ from .errors import ConfigError, SimulationError
 from .integrators.guard import RECHECK_STEPS, FrameGuard
 from .integrators.stability import exact_stable_step, nodal_frequency_bound
 from .integrators.timestep import AUTO_SAFETY, dilatational_wave_speed, plan_time
-from .io.hdf5 import RunWriter, check_writable, read_resume_state
+from .io.hdf5 import RunWriter, check_writable, frames_written, read_resume_state
 from .kernels.energy import elastic_energy, gravity_energy, kinetic_energy
 from .kernels.fields import tet_fields
 from .mesh import build_mesh
@@ -204,7 +204,7 @@ def simulate(prepared, output_path, progress=None, should_stop=None, resume=Fals
 
     started = _time.perf_counter()
     if resume:
-        writer, stored = RunWriter.reopen(output_path, fields)
+        writer, stored = RunWriter.reopen(output_path, fields, frames=len(plan.frame_steps))
         state.x[...] = model.from_user_order(stored["positions"])
         state.v[...] = model.from_user_order(stored["velocities"])
         state.step = int(stored["step"])
@@ -213,7 +213,8 @@ def simulate(prepared, output_path, progress=None, should_stop=None, resume=Fals
     else:
         check_writable(output_path)
         writer = RunWriter(output_path, model.mesh.points, model.mesh.tets, model.to_user_order(model.fixed),
-                           scene_to_yaml(scene), plan.dt, plan.total_steps, fields)
+                           scene_to_yaml(scene), plan.dt, plan.total_steps, fields, frames=len(plan.frame_steps),
+                           resume_template=guard.snapshot())
     with writer:
         if not resume:
             substeps = guard.check(state, 0.0)
@@ -356,7 +357,7 @@ def check_resumable(scene, output_path):
             status = str(f.attrs.get("status", ""))
             stored_yaml = str(f.attrs["config"])
             has_state = "state" in f and read_resume_state(f) is not None
-            frames = f["frames/time"].shape[0] if "frames/time" in f else 0
+            frames = frames_written(f)
     except (OSError, KeyError) as exc:
         raise SimulationError(f"--resume: '{output_path}' is not a softsim output file ({exc})") from None
     if status == "complete":

@@ -2,8 +2,8 @@
 ``SOFTSIM_CRASH_AT`` hook) and at random moments, then open what is left.
 
 Every kill must leave either no output file or one that opens with plain ``h5py.File(path)``,
-whose ``frames/*`` datasets all have ``frames/time``'s length, holding every frame completed
-before the kill, all finite, with ``status`` not ``complete``; its XDMF (if written yet) opens in
+whose ``frames/*`` datasets all have the same length, holding every frame completed before the
+kill (``frames_written``), all finite, with ``status`` not ``complete``; its XDMF (if written yet) opens in
 VTK's XDMF reader (ParaView's); and ``softsim run --resume`` finishes it into the same frames,
 bit for bit, as a run that was never killed.
 """
@@ -20,7 +20,7 @@ import h5py
 import numpy as np
 import pytest
 
-from softsim.io.hdf5 import read_resume_state
+from softsim.io.hdf5 import frames_written, read_resume_state
 
 SCENE = """\
 mesh: {shape: box, size: [0.2, 0.05, 0.05], element_size: 0.025, structured: true}
@@ -34,7 +34,7 @@ FRAMES = 201       # 0.4 s / 0.002 s + the initial frame
 # (hook point, frame): the frames completed before the kill are those before `frame`, plus
 # `frame` itself once it has been flushed.
 FRAME_POINTS = ["frame_start", "after_points", "after_velocities", "after_energy", "after_time",
-                "before_flush", "after_flush"]
+                "before_flush", "before_commit", "after_flush"]
 HOOKS = ([(point, 0) for point in FRAME_POINTS] + [(point, 7) for point in FRAME_POINTS]
          + [("before_xdmf", 0), ("before_rename", None), ("finish_before_status", None),
             ("finish_after_flush", None)])
@@ -70,21 +70,23 @@ def frame_datasets(f):
 
 
 def check_left_file(path, frames_done=None, complete=False):
-    """The file a kill left: opens, equal lengths, finite, not complete (unless the kill came after
-    the final status was on disk). Returns its frame count."""
+    """The file a kill left: opens, equal lengths, its complete frames finite, not complete (unless
+    the kill came after the final status was on disk). Returns its frame count."""
     with h5py.File(path) as f:                       # plain open: no repair step
         assert (f.attrs["status"] == "complete") == complete
-        k = f["frames/time"].shape[0]
+        k = frames_written(f)
+        rows = f["frames/time"].shape[0]
+        # a running (killed) file has a row for every planned frame; an ended one is trimmed
+        assert rows == (FRAMES if f.attrs["status"] == "running" else k)
         for name, dataset in frame_datasets(f).items():
-            assert dataset.shape[0] == k, f"frames/{name} has {dataset.shape[0]} rows, frames/time {k}"
-            assert np.isfinite(dataset[...]).all(), name
-        assert np.all(np.diff(f["frames/time"][...]) > 0)
-        if k:     # an intact resume state of a frame still in the file (the last, or the one before)
+            assert dataset.shape[0] == rows, f"frames/{name} has {dataset.shape[0]} rows, frames/time {rows}"
+            assert np.isfinite(dataset[:k]).all(), name
+        assert np.all(np.diff(f["frames/time"][:k]) > 0)
+        if k:     # the newest intact resume state is the last complete frame
             state = read_resume_state(f)
-            assert state is not None
-            i = int(np.searchsorted(f["frames/time"][...], state["time"]))
-            assert i >= k - 2 and f["frames/time"][i] == state["time"]
-            assert np.array_equal(state["positions"], f["frames/points"][i])
+            assert state is not None and state["frames"] == k
+            assert state["time"] == f["frames/time"][k - 1]
+            assert np.array_equal(state["positions"], f["frames/points"][k - 1])
         if frames_done is not None:
             assert k == frames_done
     return k
@@ -102,14 +104,15 @@ def check_xdmf_opens(h5_path):
     info = reader.GetOutputInformation(0)
     steps = info.Get(vtk.vtkStreamingDemandDrivenPipeline.TIME_STEPS()) or ()
     with h5py.File(h5_path) as f:
-        assert 1 <= len(steps) <= f["frames/time"].shape[0]
+        k = frames_written(f)
+        assert 1 <= len(steps) <= k
         t_last = float(steps[-1])
         info.Set(vtk.vtkStreamingDemandDrivenPipeline.UPDATE_TIME_STEP(), t_last)
         reader.Update()
         grid = reader.GetOutputDataObject(0)
         while not hasattr(grid, "GetPoints"):          # a temporal collection: its only block
             grid = grid.GetBlock(0)
-        i = int(np.argmin(abs(f["frames/time"][...] - t_last)))
+        i = int(np.argmin(abs(f["frames/time"][:k] - t_last)))
         assert grid.GetNumberOfPoints() == f["mesh/points"].shape[0]
         assert grid.GetNumberOfCells() == f["mesh/tets"].shape[0]
         points = np.array([grid.GetPoint(j) for j in range(grid.GetNumberOfPoints())])
@@ -127,10 +130,61 @@ def check_resume_matches_reference(folder, name):
             assert np.array_equal(ours[key][...], theirs[key][...]), key
 
 
+def test_a_frame_writes_raw_data_first_and_its_header_last(tmp_path, monkeypatch):
+    """Why a kill cannot tear the file: between start and end, a frame changes no HDF5 metadata.
+    The bytes that change on disk are, first, its rows and the older state slot (flushed), then
+    only that slot's 48-byte header; the file keeps its length."""
+    from softsim.io import hdf5
+
+    n, m, path = 50, 30, tmp_path / "w.h5"
+    rng = np.random.default_rng(0)
+    template = {"guard_J_seen": np.zeros(m), "guard_substeps": 1, "guard_held_work": 0.0}
+    writer = hdf5.RunWriter(path, rng.random((n, 3)), rng.integers(0, n, (m, 4)), np.zeros(n, bool), "", 1e-3, 100,
+                            fields=("velocities", "energy", "stress", "J"), frames=100, resume_template=template)
+    snapshots = {}
+
+    def snapshot(name, frame=None):
+        if frame == 3 and name in ("before_commit", "after_flush"):
+            snapshots[name] = np.frombuffer(path.read_bytes(), np.uint8)
+
+    monkeypatch.setattr(hdf5, "crash_point", snapshot)
+
+    def frame(k):
+        writer.append_frame(k * 1e-3, k, rng.random((n, 3)), rng.random((n, 3)),
+                            {"kinetic": 1.0, "elastic": 2.0, "gravity": 3.0},
+                            {"guard_J_seen": rng.random(m), "guard_substeps": 2, "guard_held_work": 0.5},
+                            {"stress": rng.random((m, 3, 3)), "J": rng.random(m)})
+
+    for k in range(3):
+        frame(k)
+    before = np.frombuffer(path.read_bytes(), np.uint8)
+    frame(3)
+    f = writer.file
+    slot = f["state/b"]                     # frames 0, 1, 2 went to slots a, b, a
+    allowed = np.zeros(before.size, bool)
+    for dataset in [f["frames/time"], f["frames/points"], f["frames/velocities"], f["frames/stress"],
+                    f["frames/J"], *f["frames/energy"].values()]:
+        info = dataset.id.get_chunk_info_by_coord((3 // dataset.chunks[0] * dataset.chunks[0],) + (0,) * (dataset.ndim - 1))
+        allowed[info.byte_offset:info.byte_offset + info.size] = True
+    for name, dataset in slot.items():
+        if name != "header":
+            allowed[dataset.id.get_offset():dataset.id.get_offset() + dataset.id.get_storage_size()] = True
+    header = np.zeros(before.size, bool)
+    header[slot["header"].id.get_offset():slot["header"].id.get_offset() + hdf5.HEADER_DTYPE.itemsize] = True
+    data_phase, header_phase = snapshots["before_commit"], snapshots["after_flush"]
+    assert before.size == data_phase.size == header_phase.size
+    changed = before != data_phase
+    assert changed.any() and not (changed & ~allowed).any(), "a frame's data flush changed bytes outside its rows"
+    changed = data_phase != header_phase
+    assert changed.any() and not (changed & ~header).any(), "the commit changed more than the header"
+    assert frames_written(f) == 4
+    writer.finish("complete")
+
+
 def expected_frames(point, frame):
     if point in ("finish_before_status", "finish_after_flush"):
         return FRAMES
-    if point == "before_xdmf" or point == "after_flush":
+    if point in ("before_xdmf", "after_flush"):
         return frame + 1
     return frame
 

@@ -12,7 +12,7 @@ from vtkmodules.vtkCommonExecutionModel import vtkStreamingDemandDrivenPipeline
 from vtkmodules.vtkIOXdmf2 import vtkXdmfReader
 
 import softsim.io.hdf5
-from softsim.io.hdf5 import read_resume_state
+from softsim.io.hdf5 import frames_written, read_resume_state
 import softsim.simulation
 from softsim import __version__
 from softsim.cli.main import cli
@@ -157,11 +157,14 @@ def test_state_is_the_last_frame(full_run):
         state = read_resume_state(f)
         np.testing.assert_array_equal(state["positions"], f["frames/points"][-1])
         np.testing.assert_array_equal(state["velocities"], f["frames/velocities"][-1])
-        assert state["time"] == f["state"].attrs["time"] == f["frames/time"][-1]
-        assert state["step"] == f["state"].attrs["step"] == f.attrs["steps"]
+        assert state["time"] == f["frames/time"][-1]
+        assert state["step"] == f.attrs["steps"]
+        assert state["frames"] == frames_written(f) == f["frames/time"].shape[0]
         # the other slot holds the frame before, also intact
-        other = f["state/a" if f["state"].attrs["current"] == "b" else "state/b"]
-        np.testing.assert_array_equal(other["positions"][...], f["frames/points"][-2])
+        headers = {slot: f[f"state/{slot}/header"][()] for slot in ("a", "b")}
+        other = min(headers, key=lambda slot: headers[slot]["frames"])
+        assert headers[other]["frames"] == state["frames"] - 1
+        np.testing.assert_array_equal(f[f"state/{other}/positions"][...], f["frames/points"][-2])
 
 
 def test_frame0_is_the_initial_deformation_and_velocity(tmp_path):
@@ -189,7 +192,7 @@ def test_without_fields_nothing_extra_is_written(tmp_path):
         # state/ always holds what a resume needs: positions, velocities and the guard's memory
         state = set(f["state/a"])
         assert {"positions", "velocities"} <= state
-        assert all(name.startswith("guard_") for name in state - {"positions", "velocities"})
+        assert all(name.startswith("guard_") for name in state - {"positions", "velocities", "scalars", "header"})
         assert f.attrs["status"] == "complete"
     assert "velocity" not in out.with_suffix(".xdmf").read_text()
 
@@ -316,7 +319,7 @@ def test_failed_run_keeps_its_frames(tmp_path, monkeypatch):
         assert "RuntimeError" in f.attrs["status_reason"]
         _assert_consistent_frames(f, 3)    # frame 0 and the frames after the 2 good steps
         np.testing.assert_allclose(f["frames/time"][:], [0.0, 0.001, 0.002], atol=1e-12)
-        assert f["state"].attrs["step"] == round(0.002 / f.attrs["dt"])
+        assert read_resume_state(f)["step"] == round(0.002 / f.attrs["dt"])
     assert out.with_suffix(".xdmf").read_text().count("<Time ") == 3
 
 
@@ -332,19 +335,17 @@ def test_interrupted_run_is_marked_interrupted(tmp_path, monkeypatch):
         _assert_consistent_frames(f, 2)
 
 
-@pytest.mark.parametrize("dataset", ["/frames/points", "/frames/velocities", "/frames/energy/kinetic",
-                                     "/frames/time"])
-def test_interrupt_while_a_frame_is_written_leaves_equal_lengths(tmp_path, monkeypatch, dataset):
+@pytest.mark.parametrize("point", ["frame_start", "after_points", "after_velocities", "after_energy",
+                                   "after_time", "before_flush", "before_commit"])
+def test_interrupt_while_a_frame_is_written_leaves_equal_lengths(tmp_path, monkeypatch, point):
     """Ctrl-C between the datasets of one frame: the half-written frame must not be left behind."""
     prepared = _prepared(tmp_path)
-    real_append = softsim.io.hdf5._append
 
-    def append(ds, k, value):
-        if ds.name == dataset and k == 2:
+    def interrupt_at(name, frame=None):
+        if name == point and frame == 2:
             raise KeyboardInterrupt
-        return real_append(ds, k, value)
 
-    monkeypatch.setattr(softsim.io.hdf5, "_append", append)
+    monkeypatch.setattr(softsim.io.hdf5, "crash_point", interrupt_at)
     out = tmp_path / "out.h5"
     with pytest.raises(KeyboardInterrupt):
         softsim.simulation.simulate(prepared, out)

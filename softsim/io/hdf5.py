@@ -1,4 +1,4 @@
-"""The run's HDF5 file: mesh once, frames appended as the run goes, status at the end.
+"""The run's HDF5 file: mesh once, frames written as the run goes, status at the end.
 
 Layout (a public interface):
 
@@ -6,16 +6,24 @@ Layout (a public interface):
 - ``frames/time`` (k,) [s], ``frames/points`` (k, n, 3) [m]; optional ``frames/velocities``
   (k, n, 3) [m/s]; ``frames/energy/{kinetic,elastic,gravity}`` (k,) [J]; the other optional
   fields of ``io.fields.FIELDS`` as ``frames/<name>``, (k, n, ...) per vertex or (k, m, ...) per tet
-- ``state/``: the resume state of the last complete frame (``positions``, ``velocities`` (n, 3),
-  the guard's ``guard_*``; attributes ``time``, ``step``, ``checksum``) in two slots ``state/a``,
-  ``state/b`` written in turn; ``state`` attribute ``current`` names the newer, ``time`` and ``step``
-  are its; read it with ``read_resume_state``
+- ``state/``: the resume state of the last complete frame, in two slots ``state/a`` and
+  ``state/b`` written in turn: ``positions``, ``velocities`` (n, 3), the guard's ``guard_*``
+  arrays, ``scalars`` (the numbers, named by its attribute ``names``) and ``header`` (one record:
+  ``frames`` written, ``step``, ``time`` [s], ``wall_time_s``, ``data_crc``, ``crc``); read it
+  with ``read_resume_state`` and the frame count with ``frames_written``
 - root attributes: ``config``, ``dt``, ``steps``, ``wall_time_s``, ``softsim_version``,
   ``status`` (running | complete | interrupted | failed), ``status_reason``
 
-Plain HDF5 (default ``libver``), chunked resizable datasets, flushed after every frame: a file left
-by a killed run opens with plain ``h5py.File(path)`` and holds the frames written before.  An XDMF
-file beside it (``out.xdmf``) lets ParaView play the frames.
+Crash safety.  The file's structure (its HDF5 metadata) changes only when a run starts, resumes
+or ends.  In between, the ``frames/*`` datasets hold a row for every planned frame, allocated up
+front (unwritten rows are holes in a sparse file), and a frame writes only raw data: its rows and
+the older ``state/`` slot, then a flush, then that slot's ``header`` (48 bytes, checksummed),
+then a flush.  A kill at any moment therefore leaves a file that plain ``h5py.File(path)`` opens,
+and the newest intact header says how many frames are complete; ``--resume`` goes on from
+there.  While a run is going, or after it was killed, the datasets are longer than that count
+(``frames_written(f)`` gives it; the XDMF lists only those frames); a run that ends, however it
+ends, trims them to it.  A kill during that final trim and status write is not covered (HDF5
+has no journal).  An XDMF file beside it (``out.xdmf``) lets ParaView play the frames.
 """
 
 import os
@@ -42,6 +50,8 @@ _ARRAY_FIELDS = tuple(name for name, spec in FIELDS.items()
 XDMF_REWRITE_INTERVAL_S = 1.0
 # A frame is written only if the disk has room for twice its data plus this (metadata, XDMF, status).
 FREE_SPACE_MARGIN_BYTES = 4 << 20
+# Rows per chunk of a frames/* dataset: as many as fit in this many bytes, at least one.
+CHUNK_BYTES = 64 << 10
 # ``state/`` holds the resume state in two slots written in turn (see ``RunWriter.append_frame``).
 STATE_SLOTS = ("a", "b")
 
@@ -73,9 +83,14 @@ class RunWriter:
 
     points (n, 3) [m], tets (m, 4), fixed (n,) bool: the mesh in the user's order.
     fields: the optional per-frame fields asked for (names of ``io.fields.FIELDS``).
+    frames: the planned number of frames, allocated up front (more grow the datasets, a structure
+    change that a kill during its flush could tear).
+    resume_template: a dict shaped like the ``resume_state`` every frame will pass (arrays and
+    numbers a resume needs besides positions and velocities); its slots are made up front.
     """
 
-    def __init__(self, path, points, tets, fixed, config_yaml, dt, steps, fields=(), xdmf=True):
+    def __init__(self, path, points, tets, fixed, config_yaml, dt, steps, fields=(), xdmf=True, frames=1,
+                 resume_template=None):
         self.path = Path(path)
         self.fields = tuple(fields)
         self.node_count = points.shape[0]
@@ -83,6 +98,8 @@ class RunWriter:
         self.xdmf = xdmf
         self._xdmf_written_at = -np.inf
         self._started = _time.perf_counter()
+        self.frame_count = 0
+        self._newest_slot = None
         # The file is built under a temporary name and renamed once its mesh and empty frame
         # datasets are on disk, so ``path`` never names a file that a plain reader cannot open.
         partial = self.path.with_name(f".{self.path.name}.partial-{os.getpid()}")
@@ -90,9 +107,10 @@ class RunWriter:
             self.file = h5py.File(partial, "w")
         except OSError as exc:
             raise SimulationError(f"output.path = '{path}': cannot create the file ({exc})") from None
-        _keep_metadata_until_flush(self.file)
         try:
-            self._create_layout(points, tets, fixed, config_yaml, dt, steps)
+            self._create_layout(points, tets, fixed, config_yaml, dt, steps, max(1, int(frames)),
+                                resume_template or {})
+            _keep_metadata_until_flush(self.file)
             crash_point("before_rename")
             os.replace(partial, self.path)
         except BaseException as exc:
@@ -102,8 +120,9 @@ class RunWriter:
                 raise SimulationError(f"output.path = '{path}': cannot write the file ({_os_reason(exc)})") from None
             raise
 
-    def _create_layout(self, points, tets, fixed, config_yaml, dt, steps):
-        """Write the mesh, the attributes and the empty frame and state datasets, then flush."""
+    def _create_layout(self, points, tets, fixed, config_yaml, dt, steps, frames, resume_template):
+        """Write the mesh, the attributes, the frame datasets (``frames`` rows, allocated) and the
+        state slots, then flush."""
         f = self.file
         f.attrs.update(config=config_yaml, dt=float(dt), steps=int(steps), wall_time_s=0.0,
                        softsim_version=__version__, status="running", status_reason="")
@@ -111,42 +130,41 @@ class RunWriter:
         mesh.create_dataset("points", data=np.asarray(points, np.float64))
         mesh.create_dataset("tets", data=np.asarray(tets, np.int64))
         mesh.create_dataset("fixed", data=np.asarray(fixed, np.bool_))
-        frames = f.create_group("frames")
+        group = f.create_group("frames")
         n = self.node_count
-        frames.create_dataset("points", shape=(0, n, 3), maxshape=(None, n, 3), dtype=np.float64, chunks=(1, n, 3))
+        _frame_dataset(group, "time", frames, ())
+        _frame_dataset(group, "points", frames, (n, 3))
         if "velocities" in self.fields:
-            frames.create_dataset("velocities", shape=(0, n, 3), maxshape=(None, n, 3), dtype=np.float64,
-                                  chunks=(1, n, 3))
+            _frame_dataset(group, "velocities", frames, (n, 3))
         if "energy" in self.fields:
-            energy = frames.create_group("energy")
+            energy = group.create_group("energy")
             for term in ENERGY_TERMS:
-                energy.create_dataset(term, shape=(0,), maxshape=(None,), dtype=np.float64, chunks=(1024,))
+                _frame_dataset(energy, term, frames, ())
         for name in self.fields:
             if name in _ARRAY_FIELDS:
                 spec = FIELDS[name]
-                row = (n if spec.location == "vertex" else self.tet_count, *spec.shape)
-                frames.create_dataset(name, shape=(0, *row), maxshape=(None, *row), dtype=np.float64,
-                                      chunks=(1, *row))
-        # Created last, so its header lies behind the others' and HDF5, which flushes metadata in
-        # address order, writes its new length last: a kill inside a flush can leave the other
-        # datasets a row ahead of frames/time, never behind it.
-        frames.create_dataset("time", shape=(0,), maxshape=(None,), dtype=np.float64, chunks=(1024,))
+                _frame_dataset(group, name, frames, (n if spec.location == "vertex" else self.tet_count, *spec.shape))
+        template = {"positions": np.zeros((n, 3)), "velocities": np.zeros((n, 3)), **resume_template}
+        arrays = {name: value for name, value in template.items() if np.ndim(value) > 0}
+        scalars = sorted(name for name, value in template.items() if np.ndim(value) == 0)
         state = f.create_group("state")
-        for slot in STATE_SLOTS:
-            group = state.create_group(slot)
-            group.create_dataset("positions", shape=(n, 3), dtype=np.float64, fillvalue=0.0)
-            group.create_dataset("velocities", shape=(n, 3), dtype=np.float64, fillvalue=0.0)
-            group.attrs.update(time=-1.0, step=-1, checksum=-1)
-        state.attrs.update(current="", time=0.0, step=0)
+        for slot_name in STATE_SLOTS:
+            slot = state.create_group(slot_name)
+            for name, value in arrays.items():
+                # Created with data, so their storage is allocated now and a frame only overwrites it.
+                slot.create_dataset(name, data=np.zeros(np.shape(value), np.float64))
+            slot.create_dataset("scalars", data=np.zeros(len(scalars), np.float64)).attrs["names"] = scalars
+            slot.create_dataset("header", data=_header(0, -1, 0.0, 0.0, 0))
         f.flush()
 
     @classmethod
-    def reopen(cls, path, fields=(), xdmf=True):
+    def reopen(cls, path, fields=(), xdmf=True, frames=1):
         """``(writer, state)`` to continue the run in ``path`` from its last complete frame.
 
         ``state`` is a dict of ``state/``: ``positions``, ``velocities`` (n, 3) in the user's order,
-        ``time``, ``step`` and any extra arrays and numbers the run stored for a resume.  Frames
-        after that state (a frame cut off by a crash) are dropped; the status is ``running`` again.
+        ``time``, ``step`` and any extra arrays and numbers the run stored for a resume.  Rows
+        after that state (a frame cut off by a crash) are written over; the datasets get rows for
+        ``frames`` frames again; the status is ``running`` again.
         """
         self = cls.__new__(cls)
         self.path = Path(path)
@@ -157,32 +175,32 @@ class RunWriter:
             self.file = h5py.File(self.path, "a")
         except OSError as exc:
             raise SimulationError(f"output.path = '{path}': cannot reopen the file to resume ({exc})") from None
-        _keep_metadata_until_flush(self.file)
         f = self.file
         self.node_count = f["mesh/points"].shape[0]
         self.tet_count = f["mesh/tets"].shape[0]
-        state = read_resume_state(f)
-        if state is None:
+        newest = _newest_slot(f, check_data=True)
+        if newest is None:
             self.file.close()
             raise SimulationError(f"--resume: '{path}' holds no intact resume state")
-        kept = int(np.searchsorted(f["frames/time"][:], float(state["time"]), side="right"))
-        f["frames/time"].resize(kept, axis=0)
-        self._drop_partial_frame()
-        self._started = _time.perf_counter() - float(f.attrs["wall_time_s"])
+        self._newest_slot, state = newest
+        self.frame_count = int(state["frames"])
+        self._started = _time.perf_counter() - float(state["wall_time_s"])
+        for dataset in _frame_datasets(f):
+            if dataset.shape[0] < frames:
+                dataset.resize(frames, axis=0)
         f.attrs.update(status="running", status_reason="")
         f.flush()
+        _keep_metadata_until_flush(f)
         return self, state
 
-    @property
-    def frame_count(self):
-        return self.file["frames/time"].shape[0]
-
     def append_frame(self, time, step, points, velocities, energy=None, resume_state=None, fields=None):
-        """Append one frame and the resume state, then flush: the file on disk changes only there.
+        """Write one frame and the resume state: raw data only, then flush, then the state's
+        header, then flush (see the module's note on crash safety).
 
         points, velocities: (n, 3) [m], [m/s] in the user's order; energy: dict of ENERGY_TERMS [J];
-        resume_state: optional dict of further arrays (datasets) and numbers (attributes) a resume
-        needs, stored with positions and velocities in the ``state/`` slot not written last time;
+        resume_state: optional dict of further arrays and numbers a resume needs, with the names
+        and shapes of the writer's ``resume_template``, stored with positions and velocities in the
+        ``state/`` slot not written last time;
         fields: ``{name: array}`` of the other fields asked for (``frames/<name>``), vertex fields in
         the user's vertex order, tet fields in ``mesh/tets`` order.
         """
@@ -207,45 +225,46 @@ class RunWriter:
             self._xdmf_written_at = now
 
     def _write_frame(self, k, time, step, points, velocities, energy, resume_state, fields=None):
-        frames = self.file["frames"]
+        group = self.file["frames"]
+        if k >= group["time"].shape[0]:          # more frames than planned: grow (structure change)
+            for dataset in _frame_datasets(self.file):
+                dataset.resize(max(2 * k, k + 1), axis=0)
         crash_point("frame_start", k)
-        _append(frames["points"], k, points)
+        group["points"][k] = points
         crash_point("after_points", k)
         if "velocities" in self.fields:
-            _append(frames["velocities"], k, velocities)
+            group["velocities"][k] = velocities
             crash_point("after_velocities", k)
         if "energy" in self.fields:
             for term in ENERGY_TERMS:
-                _append(frames["energy"][term], k, energy[term])
+                group["energy"][term][k] = energy[term]
             crash_point("after_energy", k)
         for name, value in (fields or {}).items():
-            _append(frames[name], k, value)
-        _append(frames["time"], k, time)
+            group[name][k] = value
+        group["time"][k] = time
         crash_point("after_time", k)
-        # The resume state: two slots, written in turn: the one written now is not the one the last flush called
-        # current, so a kill before the next flush (HDF5 may put raw data on disk before the
-        # metadata that describes it) leaves the current slot intact; a checksum, stored with
-        # the step, tells an intact slot from a torn one.
-        state = self.file["state"]
-        slot_name = STATE_SLOTS[1] if state.attrs["current"] == STATE_SLOTS[0] else STATE_SLOTS[0]
-        slot = state[slot_name]
-        arrays = {"positions": points, "velocities": velocities}
-        arrays.update({name: value for name, value in (resume_state or {}).items() if np.ndim(value) > 0})
+        # The resume state goes to the slot the newest header is not in, so that slot stays intact
+        # whatever happens to this one; its header, written after a flush, makes the frame count.
+        slot_name = STATE_SLOTS[1] if self._newest_slot == STATE_SLOTS[0] else STATE_SLOTS[0]
+        slot = self.file["state"][slot_name]
+        template = {"positions": points, "velocities": velocities, **(resume_state or {})}
+        arrays = {name: value for name, value in template.items() if np.ndim(value) > 0}
+        scalar_names = list(slot["scalars"].attrs["names"])
+        scalars = np.array([float(template[name]) for name in scalar_names], np.float64)
+        expected = set(scalar_names) | {name for name in slot if name not in ("scalars", "header")}
+        if set(template) != expected:
+            raise ValueError(f"resume_state names {sorted(template)} differ from the template's {sorted(expected)}")
         for name, value in arrays.items():
-            value = np.asarray(value)
-            if name in slot and slot[name].shape == value.shape and slot[name].dtype == value.dtype:
-                slot[name][...] = value
-            else:
-                if name in slot:
-                    del slot[name]
-                slot.create_dataset(name, data=value)
-        scalars = {name: value for name, value in (resume_state or {}).items() if np.ndim(value) == 0}
-        slot.attrs.update(scalars)
-        slot.attrs.update(time=float(time), step=int(step), checksum=state_checksum(arrays, step))
-        state.attrs.update(current=slot_name, time=float(time), step=int(step))
-        self.file.attrs["wall_time_s"] = _time.perf_counter() - self._started
+            slot[name][...] = value
+        slot["scalars"][...] = scalars
         crash_point("before_flush", k)
         self.file.flush()
+        crash_point("before_commit", k)
+        wall = _time.perf_counter() - self._started
+        slot["header"][()] = _header(k + 1, step, time, wall, state_checksum(arrays, scalars, step))
+        self.file.flush()
+        self._newest_slot = slot_name
+        self.frame_count = k + 1
         crash_point("after_flush", k)
 
     def _write_xdmf(self):
@@ -258,17 +277,24 @@ class RunWriter:
             if name in _ARRAY_FIELDS:
                 target = point_fields if spec.location == "vertex" else cell_fields
                 target.append((spec.xdmf_name, f"frames/{name}", spec.shape))
+        times = self.file["frames/time"]
         write_xdmf(xdmf_path_for(self.path), self.path, self.node_count, self.tet_count,
-                   self.file["frames/time"][:], point_fields=point_fields, cell_fields=cell_fields)
+                   times[:self.frame_count], point_fields=point_fields, cell_fields=cell_fields,
+                   rows=times.shape[0])
 
     def finish(self, status, reason=""):
-        """Record the final ``status`` and ``reason``, rewrite the XDMF, close the file."""
+        """Trim the frame datasets to the frames written, record the final ``status`` and
+        ``reason``, rewrite the XDMF, close the file."""
         if status not in STATUSES:
             raise ValueError(f"status must be one of {STATUSES}, got {status!r}")
         if not self.file:
             return
+        trimmed = False
         try:
-            self._drop_partial_frame()
+            for dataset in _frame_datasets(self.file):
+                if dataset.shape[0] != self.frame_count:
+                    dataset.resize(self.frame_count, axis=0)
+                    trimmed = True
             crash_point("finish_before_status")
             self.file.attrs.update(status=status, status_reason=reason,
                                    wall_time_s=_time.perf_counter() - self._started)
@@ -284,17 +310,9 @@ class RunWriter:
             try:
                 self.file.close()
             except OSError:
-                pass
-
-    def _drop_partial_frame(self):
-        """Shrink every per-frame dataset to ``frames/time``'s length (a frame cut off mid-write)."""
-        k = self.frame_count
-        datasets = []
-        self.file["frames"].visititems(lambda name, obj: datasets.append(obj)
-                                       if isinstance(obj, h5py.Dataset) else None)
-        for dataset in datasets:
-            if dataset.shape[0] > k:
-                dataset.resize(k, axis=0)
+                trimmed = False
+        if trimmed:
+            _compact(self.path)
 
     def __enter__(self):
         return self
@@ -312,39 +330,126 @@ class RunWriter:
         return False
 
 
+def _frame_dataset(group, name, frames, row_shape):
+    """A ``(frames, *row_shape)`` float64 dataset, resizable along axis 0, every chunk allocated
+    now (so writing a row changes no metadata); rows never written read as NaN (``time``,
+    ``energy``: small, filled now) or as the holes of a sparse file (the rest: not filled).
+
+    A chunk holds as many rows as fit in ``CHUNK_BYTES`` (at least one): few chunks to index,
+    and a flush rewrites at most that much of a chunk already partly written."""
+    row_bytes = 8 * int(np.prod(row_shape, dtype=np.int64))
+    dcpl = h5py.h5p.create(h5py.h5p.DATASET_CREATE)
+    dcpl.set_chunk((max(1, CHUNK_BYTES // row_bytes), *row_shape))
+    dcpl.set_alloc_time(h5py.h5d.ALLOC_TIME_EARLY)
+    if row_shape:
+        dcpl.set_fill_time(h5py.h5d.FILL_TIME_NEVER)
+    else:
+        dcpl.set_fill_value(np.array(np.nan))
+        dcpl.set_fill_time(h5py.h5d.FILL_TIME_ALLOC)
+    space = h5py.h5s.create_simple((frames, *row_shape), (h5py.h5s.UNLIMITED, *row_shape))
+    h5py.h5d.create(group.id, name.encode(), h5py.h5t.IEEE_F64LE, space, dcpl=dcpl)
+    return group[name]
+
+
+def _compact(path):
+    """Rewrite a trimmed run file without the space its unwritten rows held (still allocated,
+    though holes on disk, after a trim), under a hidden name, then rename it over ``path``: a kill
+    meanwhile leaves ``path`` as it was.  Best effort: on an OSError the file stays as it is."""
+    path = Path(path)
+    compact = path.with_name(f".{path.name}.compact-{os.getpid()}")
+    try:
+        with h5py.File(path, "r") as src, h5py.File(compact, "w") as dst:
+            dst.attrs.update(src.attrs)
+            for name in src:
+                src.copy(src[name], dst, name=name)
+        os.replace(compact, path)
+    except OSError:
+        compact.unlink(missing_ok=True)
+
+
+def _frame_datasets(f):
+    """Every dataset under ``frames/`` (one row per frame)."""
+    found = []
+    f["frames"].visititems(lambda name, obj: found.append(obj) if isinstance(obj, h5py.Dataset) else None)
+    return found
+
+
 def _keep_metadata_until_flush(file):
     """Stop HDF5's metadata cache from writing entries out to make room between flushes, so the
-    file on disk changes only at ``flush`` (the cache grows instead: a few kB per frame at most)."""
+    file's metadata on disk changes only at ``flush`` (the cache grows instead: a few kB)."""
     config = file.id.get_mdc_config()
     config.evictions_enabled = False
     config.incr_mode = config.flash_incr_mode = config.decr_mode = 0     # H5C_*_off
     file.id.set_mdc_config(config)
 
 
-def state_checksum(arrays, step):
-    """CRC-32 of a resume state: its arrays' bytes, in name order, and its step."""
+HEADER_DTYPE = np.dtype([("frames", "<i8"), ("step", "<i8"), ("time", "<f8"), ("wall_time_s", "<f8"),
+                         ("data_crc", "<i8"), ("crc", "<i8")])
+
+
+def _header(frames, step, time, wall_time_s, data_crc):
+    """One ``state/<slot>/header`` record; ``crc`` is the CRC-32 of the fields before it."""
+    record = np.zeros((), HEADER_DTYPE)
+    record["frames"], record["step"], record["time"] = frames, step, time
+    record["wall_time_s"], record["data_crc"] = wall_time_s, data_crc
+    record["crc"] = _header_crc(record)
+    return record
+
+
+def _header_crc(record):
+    return zlib.crc32(record.tobytes()[:HEADER_DTYPE.fields["crc"][1]])
+
+
+def state_checksum(arrays, scalars, step):
+    """CRC-32 of a resume state: its arrays' bytes in name order, its numbers and its step."""
     crc = zlib.crc32(str(int(step)).encode())
     for name in sorted(arrays):
         crc = zlib.crc32(np.ascontiguousarray(arrays[name], dtype=np.float64).tobytes(), crc)
-    return crc
+    return zlib.crc32(np.ascontiguousarray(scalars, dtype=np.float64).tobytes(), crc)
+
+
+def _newest_slot(f, check_data):
+    """``(slot name, state dict)`` of the newest slot whose header is intact (and, with
+    ``check_data``, whose arrays match it), or None.  The dict holds the header's fields and, with
+    ``check_data``, the arrays and the named numbers."""
+    found = []
+    for slot_name in STATE_SLOTS:
+        slot = f["state"].get(slot_name)
+        if slot is None or "header" not in slot:
+            continue
+        record = slot["header"][()]
+        if int(record["frames"]) < 1 or int(record["crc"]) != _header_crc(record):
+            continue
+        state = {name: record[name].item() for name in ("frames", "step", "time", "wall_time_s")}
+        if check_data:
+            arrays = {name: dataset[...] for name, dataset in slot.items() if name not in ("scalars", "header")}
+            scalars = slot["scalars"][...]
+            if int(record["data_crc"]) != state_checksum(arrays, scalars, state["step"]):
+                continue
+            state.update(arrays)
+            state.update(zip(slot["scalars"].attrs["names"], scalars.tolist()))
+        found.append((state["frames"], slot_name, state))
+    if not found:
+        return None
+    _, slot_name, state = max(found, key=lambda item: item[0])
+    return slot_name, state
 
 
 def read_resume_state(f):
     """The newest intact resume state in an open run file, as a dict of its arrays (``positions``,
-    ``velocities`` (n, 3) in the user's order, ...) and numbers (``time``, ``step``, ...); None if
-    no slot is intact.  The current slot is tried first, then the other one."""
-    state = f["state"]
-    current = str(state.attrs.get("current", ""))
-    order = sorted(STATE_SLOTS, key=lambda slot: slot != current)
-    for slot_name in order:
-        slot = state[slot_name]
-        step = int(slot.attrs.get("step", -1))
-        if step < 0:
-            continue
-        arrays = {name: dataset[...] for name, dataset in slot.items()}
-        if int(slot.attrs.get("checksum", -1)) == state_checksum(arrays, step):
-            return {**arrays, **{name: value for name, value in slot.attrs.items() if name != "checksum"}}
-    return None
+    ``velocities`` (n, 3) in the user's order, ...) and numbers (``frames`` written, ``time``,
+    ``step``, ``wall_time_s``, ...); None if no slot is intact."""
+    newest = _newest_slot(f, check_data=True)
+    return None if newest is None else newest[1]
+
+
+def frames_written(f):
+    """How many frames of an open run file are complete: rows ``0 .. frames_written(f) - 1`` of
+    every ``frames/*`` dataset (a file from a run that ended is trimmed to exactly these)."""
+    if "state" not in f or not any("header" in slot for slot in f["state"].values()):
+        return f["frames/time"].shape[0] if "frames/time" in f else 0     # written before the headers
+    newest = _newest_slot(f, check_data=False)
+    return 0 if newest is None else int(newest[1]["frames"])
 
 
 def free_bytes(path):
@@ -371,9 +476,3 @@ def crash_point(name, frame=None):
     point, _, at_frame = _CRASH_AT.partition(":")
     if point == name and (not at_frame or frame is None or int(at_frame) == frame):
         os.kill(os.getpid(), signal.SIGKILL)
-
-
-def _append(dataset, k, value):
-    """Grow ``dataset`` along axis 0 to ``k + 1`` and write ``value`` at row ``k``."""
-    dataset.resize(k + 1, axis=0)
-    dataset[k] = value

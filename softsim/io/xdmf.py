@@ -29,6 +29,7 @@ def write_xdmf(
     times,
     point_fields=(),
     cell_fields=(),
+    rows=None,
 ) -> None:
     """Write (atomically replace) ``xdmf_path`` describing the first ``len(times)`` frames.
 
@@ -45,6 +46,8 @@ def write_xdmf(
         cell_fields: ``(attribute_name, dataset_path, component_shape)`` triples for per-tet
             data stored as (k, m, *component_shape) float64; component_shape is ``()`` (Scalar),
             ``(3,)`` (Vector) or ``(3, 3)`` (Tensor).
+        rows: the number of rows the ``frames/*`` datasets hold (default k); a running file's
+            datasets hold a row for every planned frame.
 
     The new file appears via ``os.replace``, so a reader never sees a half-written XDMF.
     """
@@ -52,6 +55,7 @@ def write_xdmf(
     h5_ref = os.path.relpath(os.path.abspath(h5_path), xdmf_dir).replace(os.sep, "/")
     times = [float(t) for t in times]
     k, n, m = len(times), int(node_count), int(tet_count)
+    rows = k if rows is None else int(rows)
 
     def slab(indent, dataset, shape, start, count, number_type="Float"):
         """HyperSlab DataItem: rows start..start+count-1 of an HDF5 dataset of shape `shape`."""
@@ -68,8 +72,8 @@ def write_xdmf(
         )
 
     def frame_slab(indent, dataset, per_frame_shape, i):
-        """Frame i of a (k, *per_frame_shape) float64 dataset (it may hold more than k rows)."""
-        return slab(indent, dataset, (k, *per_frame_shape), i, 1)
+        """Frame i of a (rows, *per_frame_shape) float64 dataset."""
+        return slab(indent, dataset, (rows, *per_frame_shape), i, 1)
 
     def attribute(name, center, kind, dataset, per_frame_shape, i):
         name = escape(name, _QUOTE)

@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ConfigError, MissingDependencyError, SoftsimError
+from ..io.hdf5 import frames_written, read_resume_state
 from .catalogue import MODELS, catalogue
 from .limits import MESH_KINDS, LimitCase, limit_cases, limit_meshes, measure_limit, verdicts
 
@@ -159,9 +160,10 @@ def run_metrics(path):
     import h5py
 
     with h5py.File(path, "r") as f:
-        steps = int(f["state"].attrs["step"])
+        state = read_resume_state(f)
+        steps = int(state["step"]) if state is not None else 0      # None: stopped before frame 0
         dt = float(f.attrs["dt"])
-        k = f["frames/time"].shape[0]
+        k = frames_written(f)
         J = volume_ratios(f["mesh/points"][:], f["mesh/tets"][:], f["frames/points"][:k])
         drift = None
         if "frames/energy" in f and k > 1:

@@ -12,7 +12,7 @@ import h5py
 import numpy as np
 import yaml
 
-from ..io.hdf5 import read_resume_state
+from ..io.hdf5 import frames_written, read_resume_state
 
 # Tip vertices: those within this fraction of the greatest distance from the held vertices.
 TIP_TOLERANCE = 1e-3
@@ -74,7 +74,7 @@ def run_metrics(path):
         tets = f["mesh/tets"][...]
         fixed = f["mesh/fixed"][...]
         frames = f["frames/points"]
-        frame_count = f["frames/time"].shape[0]
+        frame_count = frames_written(f)
         max_displacement = 0.0
         for start in range(0, frame_count, 64):
             chunk = frames[start:min(start + 64, frame_count)]
@@ -90,7 +90,9 @@ def run_metrics(path):
             "status_reason": str(attrs.get("status_reason", "")),
             "steps": int(attrs.get("steps", 0)),
             "dt": float(attrs.get("dt", math.nan)),
-            "wall_time_s": float(attrs.get("wall_time_s", math.nan)),
+            # a killed run's wall time is in its last resume state; the attribute is set at the end
+            "wall_time_s": float(resume_state.get("wall_time_s", math.nan) if attrs.get("status") == "running"
+                                 else attrs.get("wall_time_s", math.nan)),
         }
     density = float(config["material"]["density"])
     mass = lumped_masses(points, tets, density)

@@ -50,7 +50,7 @@ def summarize(path):
 
 
 def _range(results, dataset):
-    """(min, max) over the frames counted by ``frames/time``, read one frame at a time."""
+    """(min, max) over the frames counted by ``io.hdf5.frames_written``, read one frame at a time."""
     data = results.file["frames"][dataset]
     k = results.frame_count
     if data.ndim == 1:

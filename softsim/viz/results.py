@@ -3,7 +3,7 @@
 ``open_results(path)`` checks that ``path`` is a softsim output file and returns ``Results``; frames
 and fields are read one frame at a time, so files larger than memory can be summarised.  A file that
 a run is still writing opens too (HDF5 file locking is off for reading; only the frames that
-``frames/time`` counts are used).
+``io.hdf5.frames_written`` counts are used).
 """
 
 import re
@@ -14,6 +14,7 @@ import yaml
 
 from ..errors import SoftsimError
 from ..io.fields import FIELDS
+from ..io.hdf5 import frames_written
 
 
 class ResultsError(SoftsimError):
@@ -33,7 +34,7 @@ class Results:
         self.attrs = {key: _plain(value) for key, value in file.attrs.items()}
         self.points = file["mesh/points"][:]
         self.tets = file["mesh/tets"][:]
-        self.times = file["frames/time"][:]
+        self.times = file["frames/time"][:frames_written(file)]
         try:
             self.scene = yaml.safe_load(self.attrs.get("config", "")) or {}
         except yaml.YAMLError:
