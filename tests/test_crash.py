@@ -64,8 +64,15 @@ def workdir(tmp_path_factory):
 
 
 def frame_datasets(f):
+    """``{name under frames/: dataset}`` for every frames/* dataset."""
     found = {}
-    f["frames"].visititems(lambda name, obj: found.setdefault(name, obj) if isinstance(obj, h5py.Dataset) else None)
+
+    def add(name, obj):      # returns None: a value would stop visititems
+        if isinstance(obj, h5py.Dataset):
+            found[name] = obj
+
+    f["frames"].visititems(add)
+    assert {"time", "points"} <= found.keys()
     return found
 
 
