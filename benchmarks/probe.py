@@ -46,8 +46,17 @@ def memory(tets):
     arrays["work buffer"] = sim.work.nbytes
     mesh = model.mesh
     arrays["mesh (user order)"] = mesh.points.nbytes + mesh.tets.nbytes
+    # What one step reads or writes: the block layout, the scatter's arrays, the state, the
+    # per-vertex constants (and the ground's faces when there is a ground).
+    touched = [f"blocks.{name}" for name in ("tets", "rest", "colour_offsets", "colour_parts")]
+    touched += ["state (x, v, held_start)", "work buffer", "inv_mass", "external_accel", "held", "held_velocity"]
+    if model.blocks.scatter == "csr":
+        touched += ["csr_offsets", "csr_slots"]
+    if model.ground_arguments() is not None:
+        touched += ["boundary_faces", "face_offsets", "face_slots"]
     return dict(tets=model.tet_count, baseline_rss=baseline, peak_after_prepare=after_prepare,
-                peak_rss=_peak_rss(), arrays=arrays)
+                peak_rss=_peak_rss(), arrays=arrays, step_arrays=sum(arrays[name] for name in touched),
+                step_array_names=touched)
 
 
 def startup(tets):

@@ -218,6 +218,8 @@ def memory(target, threads):
     total = sum(result["arrays"].values())
     rows.append(row("memory", "all arrays of the run", tets, "softsim", ratio=total / tets, ratio_to="bytes per tet",
                     note="model + block layout + state + work buffer + the mesh in the user's order"))
+    rows.append(row("memory", "arrays the step touches", tets, "softsim", ratio=result["step_arrays"] / tets,
+                    ratio_to="bytes per tet", note=", ".join(result["step_array_names"])))
     for name, nbytes in sorted(result["arrays"].items(), key=lambda kv: -kv[1]):
         if nbytes / tets >= 0.5:
             rows.append(row("memory", name, tets, "softsim", ratio=nbytes / tets, ratio_to="bytes per tet"))
