@@ -137,10 +137,12 @@ def check_resume_matches_reference(folder, name):
             assert np.array_equal(ours[key][...], theirs[key][...]), key
 
 
-def test_a_frame_writes_raw_data_first_and_its_header_last(tmp_path, monkeypatch):
+@pytest.mark.parametrize("resumed", [False, True])
+def test_a_frame_writes_raw_data_first_and_its_header_last(tmp_path, monkeypatch, resumed):
     """Why a kill cannot tear the file: between start and end, a frame changes no HDF5 metadata.
     The bytes that change on disk are, first, its rows and the older state slot (flushed), then
-    only that slot's 48-byte header; the file keeps its length."""
+    only that slot's 48-byte header; the file keeps its length.  The same after a resume (the
+    interrupted file was trimmed and compacted, and is extended again)."""
     from softsim.io import hdf5
 
     n, m, path = 50, 30, tmp_path / "w.h5"
@@ -164,6 +166,12 @@ def test_a_frame_writes_raw_data_first_and_its_header_last(tmp_path, monkeypatch
 
     for k in range(3):
         frame(k)
+    if resumed:
+        writer.finish("interrupted")
+        with h5py.File(path) as f:
+            assert f["frames/points"].shape[0] == 3
+        writer, state = hdf5.RunWriter.reopen(path, ("velocities", "energy", "stress", "J"), frames=100)
+        assert state["frames"] == 3 and state["guard_substeps"] == 2
     before = np.frombuffer(path.read_bytes(), np.uint8)
     frame(3)
     f = writer.file
