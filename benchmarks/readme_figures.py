@@ -4,8 +4,9 @@
 
 Runs the example scenes and the commands the README shows: the bouncing cube as a GIF and the
 cantilever's von Mises frame (``softsim render``), the cantilever sweep's plot (``softsim sweep
---plot``) and the cantilever's error against wall time (``softsim verify``; about 10 minutes on
-one core, ``--quick`` for the quick ladder in about one).  The benchmark table and plot come
+--plot``), the cantilever's error against wall time (``softsim verify``; about 10 minutes on
+one core, ``--quick`` for the quick ladder in about one) and the stability report's plot of the
+measured limit against ``dt: auto`` (``softsim stability --quick``, about 2 minutes).  The benchmark table and plot come
 from ``python -m benchmarks`` (benchmarks/results/).  Needs ``pip install -e ".[plot,sweep]"``.
 """
 
@@ -43,6 +44,8 @@ def main():
         shutil.copy(work / "sweep" / "summary.png", IMAGES / "sweep_cantilever.png")
         softsim("verify", *(["--quick"] if args.quick else []), "--threads", "1", "-o", "verify", cwd=work)
         shutil.copy(work / "verify" / "verify_cantilever.png", IMAGES / "verify_cantilever.png")
+        softsim("stability", "--quick", "-o", "stability", cwd=work)
+        shutil.copy(work / "stability" / "stability.png", IMAGES / "stability.png")
     print(f"wrote {', '.join(sorted(p.name for p in IMAGES.iterdir()))} in {IMAGES}")
 
 

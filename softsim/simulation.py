@@ -19,7 +19,8 @@ from .integrators.symplectic_euler import advance, step_arguments, work_buffer
 from .errors import ConfigError, SimulationError
 from .integrators.guard import RECHECK_STEPS, FrameGuard
 from .integrators.stability import exact_stable_step, nodal_frequency_bound
-from .integrators.timestep import AUTO_SAFETY, dilatational_wave_speed, plan_time
+from .integrators.timestep import (AUTO_EIGEN_ITERATIONS, AUTO_EIGEN_MIN_STEPS, AUTO_EIGEN_SAFETY, AUTO_SAFETY,
+                                   dilatational_wave_speed, plan_time)
 from .io.hdf5 import RunWriter, check_writable, frames_written, read_resume_state
 from .kernels.energy import elastic_energy, gravity_energy, kinetic_energy
 from .kernels.fields import tet_fields
@@ -37,7 +38,7 @@ class Prepared:
     """A scene ready to run: its model, time plan, and stable steps.
 
     dt_estimate: a rigorous lower bound of the stable step at rest [s]; safe_dt: the step
-    ``dt: auto`` would use before fitting it to the frames [s]; substeps: how many sub-steps the
+    ``dt: auto`` would use before fitting it to the frames (``auto_step``) [s]; substeps: how many sub-steps the
     policy split a given dt into; wave_speed: dilatational wave speed [m/s].
     """
 
@@ -82,14 +83,29 @@ def stable_dt_estimate(model):
     return 2.0 / math.sqrt(bound) if bound > 0.0 else math.inf
 
 
+def auto_step(model, duration, dt_estimate):
+    """The ``dt: auto`` step [s] before it is fitted to the frames (see ``integrators.timestep``).
+
+    ``max(AUTO_SAFETY x dt_estimate, AUTO_EIGEN_SAFETY x 2 / omega_max)`` with the eigenvalue
+    limit at rest from Lanczos, computed only when a run of ``duration`` [s] takes at least
+    ``AUTO_EIGEN_MIN_STEPS`` steps at the nodal-bound step (else that step alone).  Between 0.6
+    and 0.8x the limit at rest; deterministic (fixed-seed Lanczos), so a resumed run plans the same.
+    """
+    nodal = AUTO_SAFETY * dt_estimate
+    if not math.isfinite(nodal) or duration / nodal < AUTO_EIGEN_MIN_STEPS:
+        return nodal
+    return max(nodal, AUTO_EIGEN_SAFETY * exact_stable_step(model, iterations=AUTO_EIGEN_ITERATIONS))
+
+
 def choose_dt(scene, model, dt_estimate):
     """``(dt_target, safe_dt, substeps)`` [s, s, count] from ``time.dt`` and ``time.dt_policy``.
 
-    ``auto``: ``AUTO_SAFETY x`` the nodal-bound step; ``exact``: ``EXACT_SAFETY x`` the limit from
-    the largest eigenvalue of M^-1 K.  A given dt above the safe step is split into the fewest
-    equal sub-steps below it (``substep``), refused (``refuse``), or used as given (``allow``).
+    ``auto``: ``auto_step`` (the larger of ``AUTO_SAFETY x`` the nodal-bound step and, for runs long
+    enough, ``AUTO_EIGEN_SAFETY x`` the eigenvalue limit); ``exact``: ``EXACT_SAFETY x`` the limit
+    from the largest eigenvalue of M^-1 K.  A given dt above the safe (auto) step is split into the
+    fewest equal sub-steps below it (``substep``), refused (``refuse``), or used as given (``allow``).
     """
-    safe = AUTO_SAFETY * dt_estimate
+    safe = auto_step(model, scene.time.duration, dt_estimate)
     if scene.time.dt == "auto":
         return safe, safe, 1
     if scene.time.dt == "exact":
