@@ -8,6 +8,9 @@ an inverted element sees a restoring force instead of a mirrored rest state.
 
 Method: cyclic Jacobi on ``C = F^T F`` gives ``V`` and ``s^2``; the columns of ``U`` follow from
 ``F V``, with the third one as the cross product of the first two so that ``det U = +1``.
+
+The material laws no longer call this (arrays per call, scalar code): they use ``polar3``, the
+same method on scalars.  Kept as the array-based version that ``tests/test_kernels.py`` checks.
 """
 
 import math

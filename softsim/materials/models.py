@@ -10,7 +10,8 @@ strain all four reduce to isotropic Hooke's law with the scene's E and nu.
 - ``stvk`` (St. Venant-Kirchhoff): Green strain ``E``, ``S = lam tr(E) I + 2 mu E``, ``P = F S``.
   Softens and can collapse under strong compression.
 - ``corotated``: ``Psi = mu |F - R|^2 + lam/2 tr(R^T F - I)^2`` with the rotation ``R`` of the
-  inversion-aware SVD (Irving et al. 2004); ``P = 2 mu (F - R) + lam tr(R^T F - I) R``.
+  inversion-aware SVD (Irving et al. 2004), ``kernels.polar3.polar_rotation``;
+  ``P = 2 mu (F - R) + lam tr(R^T F - I) R``.
 - ``neohookean``: stable Neo-Hookean, Smith, de Goes & Kim 2018,
   ``Psi = mu/2 (I_C - 3) + lam/2 (J - alpha)^2 - mu/2 log(I_C + 1)``, ``alpha = 1 + 3 mu / (4 lam)``,
   with the Lame remapping of ``lame.stable_neohookean_parameters``; finite for inverted elements.
@@ -31,7 +32,7 @@ from ..kernels.mat3 import (
     mat3_scale,
     mat3_trace,
 )
-from ..kernels.svd3 import svd3_inversion_aware
+from ..kernels.polar3 import polar_rotation
 from .lame import lame_parameters, stable_neohookean_parameters
 
 LINEAR = 0
@@ -105,37 +106,23 @@ def stvk_energy_density(F, lam, mu):
 
 
 @njit
-def corotated_rotation(F):
-    """``(R, s)``: the rotation ``R = U V^T`` (9-tuple) and signed singular values ``s`` (3,) of F."""
-    U, s, V = svd3_inversion_aware(F)
-    R = (U[0, 0] * V[0, 0] + U[0, 1] * V[0, 1] + U[0, 2] * V[0, 2],
-         U[0, 0] * V[1, 0] + U[0, 1] * V[1, 1] + U[0, 2] * V[1, 2],
-         U[0, 0] * V[2, 0] + U[0, 1] * V[2, 1] + U[0, 2] * V[2, 2],
-         U[1, 0] * V[0, 0] + U[1, 1] * V[0, 1] + U[1, 2] * V[0, 2],
-         U[1, 0] * V[1, 0] + U[1, 1] * V[1, 1] + U[1, 2] * V[1, 2],
-         U[1, 0] * V[2, 0] + U[1, 1] * V[2, 1] + U[1, 2] * V[2, 2],
-         U[2, 0] * V[0, 0] + U[2, 1] * V[0, 1] + U[2, 2] * V[0, 2],
-         U[2, 0] * V[1, 0] + U[2, 1] * V[1, 1] + U[2, 2] * V[1, 2],
-         U[2, 0] * V[2, 0] + U[2, 1] * V[2, 1] + U[2, 2] * V[2, 2])
-    return R, s
+def corotated_stress(F, R, lam, mu):
+    """``P = 2 mu (F - R) + lam tr(R^T F - I) R`` [Pa] for ``F`` and its rotation ``R`` (9-tuples)."""
+    volumetric = lam * (mat3_ddot(R, F) - 3.0)
+    return mat3_add_scaled(mat3_scale(F, 2.0 * mu), R, volumetric - 2.0 * mu)
 
 
 @njit
 def corotated_first_piola(F, lam, mu):
-    R, s = corotated_rotation(F)
-    volumetric = lam * (s[0] + s[1] + s[2] - 3.0)
-    P = mat3_add_scaled(mat3_scale(F, 2.0 * mu), R, volumetric - 2.0 * mu)
-    return P
+    return corotated_stress(F, polar_rotation(F), lam, mu)
 
 
 @njit
 def corotated_energy_density(F, lam, mu):
-    _, s = corotated_rotation(F)
-    d0 = s[0] - 1.0
-    d1 = s[1] - 1.0
-    d2 = s[2] - 1.0
-    tr = d0 + d1 + d2
-    return mu * (d0 * d0 + d1 * d1 + d2 * d2) + 0.5 * lam * tr * tr
+    R = polar_rotation(F)
+    D = mat3_add_scaled(F, R, -1.0)
+    tr = mat3_ddot(R, F) - 3.0
+    return mu * mat3_ddot(D, D) + 0.5 * lam * tr * tr
 
 
 # ---------------------------------------------------------------------------------------------

@@ -1,0 +1,255 @@
+"""The corotated model's rotation (``kernels.polar3``: Newton's polar iteration, the Jacobi SVD where
+it does not converge) against ``numpy.linalg.svd`` with the reflection moved into the smallest
+singular value (``naive.polar_rotation``), and the corotated lane loop of ``kernels.blocked``
+against the per-tet law, on blocks whose lanes take either path.
+
+Families of F: random, near a rotation, large rotations, stretch ratios up to 1e3, inverted,
+nearly repeated and nearly zero singular values, and exactly singular ones.  The rotation of an
+inverted F is ill-conditioned as ``s1 - |s2|`` goes to zero, of any F as ``s1 + s2`` does (signed
+s): errors are checked against ``eps / (s1 + s2)`` relative to ``s0``.
+"""
+
+import numpy as np
+import pytest
+
+import naive
+from softsim.kernels.blocked import BLOCK, FALLBACK_VECTOR_MIN_LANES, ROW_F, ROW_VOLUME, ROW_X, ROWS, corotated_block
+from softsim.kernels.polar3 import jacobi_polar_rotation, newton_polar_rotation_jit, polar_rotation
+from softsim.materials.models import corotated_energy_density, corotated_first_piola, model_lame_parameters
+from test_blocked_kernels import Body
+
+EPS = np.finfo(np.float64).eps
+LAM, MU = model_lame_parameters("corotated", 1.0e6, 0.3)
+
+
+def rotation(rng, min_angle=0.0):
+    """Rodrigues rotation about a random axis by an angle in [min_angle, pi]."""
+    axis = rng.normal(size=3)
+    axis /= np.linalg.norm(axis)
+    angle = rng.uniform(min_angle, np.pi)
+    K = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    return np.eye(3) + np.sin(angle) * K + (1.0 - np.cos(angle)) * K @ K
+
+
+def with_singular_values(rng, s):
+    return rotation(rng) @ np.diag(s) @ rotation(rng)
+
+
+def family(name, rng):
+    """One random F of family ``name``."""
+    if name == "random":
+        return rng.normal(size=(3, 3))
+    if name == "near rotation":
+        return rotation(rng) @ (np.eye(3) + 1e-3 * rng.normal(size=(3, 3)))
+    if name == "large rotation":
+        return rotation(rng, 0.9 * np.pi) @ (np.eye(3) + 0.3 * rng.normal(size=(3, 3)))
+    if name == "stretch ratio up to 1e3":
+        return with_singular_values(rng, np.exp(rng.uniform(np.log(1e-3), 0.0, 3)) * np.exp(rng.uniform(-2, 2)))
+    if name == "inverted":
+        return with_singular_values(rng, [rng.uniform(0.5, 2.0), rng.uniform(0.3, 1.0), -rng.uniform(0.01, 0.25)])
+    if name == "inverted, stretch ratio up to 1e3":
+        return with_singular_values(rng, np.exp(rng.uniform(np.log(1e-3), 0.0, 3)) * [1.0, 1.0, -1.0])
+    if name == "nearly repeated":
+        d = 10.0 ** rng.uniform(-12, -6)
+        return with_singular_values(rng, [1.0 + d, 1.0, 1.0 - d])
+    if name == "nearly flat":
+        return with_singular_values(rng, [rng.uniform(0.5, 2.0), rng.uniform(0.1, 0.5),
+                                          10.0 ** rng.uniform(-12, -4) * rng.choice([-1.0, 1.0])])
+    raise ValueError(name)
+
+
+FAMILIES = ("random", "near rotation", "large rotation", "stretch ratio up to 1e3", "inverted",
+            "inverted, stretch ratio up to 1e3", "nearly repeated", "nearly flat")
+# Well-conditioned families, P not near zero: P must match the reference to 1e-9 relative.
+WELL_CONDITIONED = ("random", "near rotation", "large rotation", "inverted")
+
+
+def as_matrix(t):
+    return np.array(t, dtype=np.float64).reshape(3, 3)
+
+
+def rotation_of(F):
+    """softsim's R (3, 3) for F (3, 3)."""
+    return as_matrix(polar_rotation(tuple(F.ravel())))
+
+
+def P_of(F):
+    return as_matrix(corotated_first_piola(tuple(F.ravel()), LAM, MU))
+
+
+def assert_proper_rotation(R):
+    assert np.all(np.isfinite(R))
+    np.testing.assert_allclose(R.T @ R, np.eye(3), rtol=0, atol=1e-13)
+    assert np.linalg.det(R) == pytest.approx(1.0, abs=1e-13)
+
+
+# ---------------------------------------------------------------------------------------------
+# the two paths against numpy.linalg.svd
+
+
+@pytest.mark.parametrize("name", FAMILIES)
+def test_jacobi_svd_matches_numpy_svd(name):
+    """R within ``1000 eps / (s1 + s2)`` of the reference (measured: at most 450 in 10^6 samples
+    per family), the signed singular values within ``100 eps s0``, det R = +1, s2 < 0 iff det F < 0."""
+    rng = np.random.default_rng(FAMILIES.index(name))
+    for _ in range(300):
+        F = family(name, rng)
+        R_ref, s_ref = naive.polar_rotation(F)
+        R, s0, s1, s2 = jacobi_polar_rotation(tuple(F.ravel()))
+        R = as_matrix(R)
+        assert_proper_rotation(R)
+        conditioning = (s_ref[1] + s_ref[2]) / s_ref[0]
+        assert np.abs(R - R_ref).max() * conditioning < 1000.0 * EPS, (F, R, R_ref)
+        np.testing.assert_allclose([s0, s1, s2], s_ref, rtol=0, atol=100.0 * EPS * s_ref[0])
+        assert (s2 < 0) == (np.linalg.det(F) < 0)
+
+
+@pytest.mark.parametrize("name", FAMILIES)
+def test_newton_rotation_is_the_reference_where_it_converges(name):
+    """Accepted Newton results are within 1e-13 of the reference (measured: 1e-14); it accepts every
+    F near a rotation and no inverted or nearly flat one."""
+    rng = np.random.default_rng(100 + FAMILIES.index(name))
+    accepted = 0
+    for _ in range(300):
+        F = family(name, rng)
+        R, converged = newton_polar_rotation_jit(tuple(F.ravel()))
+        if converged:
+            accepted += 1
+            R_ref, _ = naive.polar_rotation(F)
+            np.testing.assert_allclose(as_matrix(R), R_ref, rtol=0, atol=1e-13)
+        if np.linalg.det(F) <= 0.0 or name == "nearly flat":
+            assert not converged
+    if name in ("near rotation", "nearly repeated"):
+        assert accepted == 300
+
+
+@pytest.mark.parametrize("name", WELL_CONDITIONED)
+def test_corotated_stress_matches_the_reference(name):
+    """``P = 2 mu (F - R) + lam tr(R^T F - I) R`` within 1e-9 of ``naive.pk1`` (relative)."""
+    rng = np.random.default_rng(200 + FAMILIES.index(name))
+    for _ in range(300):
+        F = family(name, rng)
+        s = np.linalg.svd(F, compute_uv=False)
+        if name == "random" and (s[2] < 0.05 * s[0] or s[1] - s[2] < 0.05 * s[0]):
+            continue                                    # keep the random ones well-conditioned
+        P_ref = naive.pk1("corotated", F, LAM, MU)
+        assert np.linalg.norm(P_of(F) - P_ref) <= 1e-9 * np.linalg.norm(P_ref)
+
+
+# ---------------------------------------------------------------------------------------------
+# rotations, inversion, degenerate F
+
+
+def test_a_rotation_is_its_own_rotation_and_feels_no_stress():
+    rng = np.random.default_rng(300)
+    axis = np.array([0.0, 0.6, 0.8])
+    half_turn = 2.0 * np.outer(axis, axis) - np.eye(3)              # rotation by pi
+    for Q in [np.eye(3), half_turn] + [rotation(rng) for _ in range(50)]:
+        np.testing.assert_allclose(rotation_of(Q), Q, rtol=0, atol=1e-15)
+        assert np.abs(P_of(Q)).max() < 1e-14 * (LAM + MU)
+        assert abs(corotated_energy_density(tuple(Q.ravel()), LAM, MU)) < 1e-24 * (LAM + MU)
+
+
+def test_inverted_F_gives_a_proper_rotation_and_the_reference_stress():
+    """The reflection goes into the smallest singular value: R is the reference's proper rotation,
+    not the improper polar factor, and P points back towards positive volume."""
+    rng = np.random.default_rng(301)
+    for _ in range(100):
+        F = family("inverted", rng)
+        R = rotation_of(F)
+        assert_proper_rotation(R)
+        R_ref, _ = naive.polar_rotation(F)
+        np.testing.assert_allclose(R, R_ref, rtol=0, atol=1e-12)
+        P = P_of(F)
+        P_ref = naive.pk1("corotated", F, LAM, MU)
+        assert np.linalg.norm(P - P_ref) <= 1e-9 * np.linalg.norm(P_ref)
+        # dJ/dt along -P: the volume grows (J = det F < 0 rises towards 0)
+        cofactor = np.linalg.det(F) * np.linalg.inv(F).T
+        assert np.sum(cofactor * -P) > 0.0
+    mirror = np.diag([1.0, 1.0, -1.0])
+    assert_proper_rotation(rotation_of(mirror))
+    assert np.all(np.isfinite(P_of(mirror)))
+
+
+def test_singular_F_gives_a_finite_stress():
+    """Zero, rank 1, rank 2 and nearly flat F: a proper rotation and finite P; for rank 2 the
+    rotation is unique and matches the reference."""
+    rng = np.random.default_rng(302)
+    cases = [np.zeros((3, 3)), np.outer(rng.normal(size=3), rng.normal(size=3)), np.diag([1.0, 0.0, 0.0]),
+             np.diag([0.0, 0.0, 1e-300])]
+    for _ in range(20):
+        rank2 = with_singular_values(rng, [rng.uniform(0.5, 2.0), rng.uniform(0.1, 0.5), 0.0])
+        cases.append(rank2)
+        R_ref, _ = naive.polar_rotation(rank2)
+        np.testing.assert_allclose(rotation_of(rank2), R_ref, rtol=0, atol=1e-12)
+        cases.append(family("nearly flat", rng))
+    for F in cases:
+        assert_proper_rotation(rotation_of(F))
+        P = P_of(F)
+        assert np.all(np.isfinite(P))
+        assert np.abs(P).max() < 10.0 * (LAM + MU) * max(1.0, np.abs(F).max())
+
+
+# ---------------------------------------------------------------------------------------------
+# the lane loop
+
+
+def block_of(Fs):
+    """A scratch buffer whose lane j has deformation gradient exactly ``Fs[j]``: Dm^-1 = I, V0 = 1,
+    corner 0 at the origin, corners 1..3 at the columns of F; its corner forces are then exactly
+    ``-P`` (columns on corners 1..3)."""
+    buf = np.zeros(ROWS * BLOCK)
+    for r in (0, 4, 8):
+        buf[r * BLOCK:(r + 1) * BLOCK] = 1.0
+    buf[ROW_VOLUME * BLOCK:(ROW_VOLUME + 1) * BLOCK] = 1.0
+    for c in range(1, 4):
+        for k in range(3):
+            buf[(ROW_X + 3 * c + k) * BLOCK:(ROW_X + 3 * c + k + 1) * BLOCK] = Fs[:, k, c - 1]
+    return buf
+
+
+@pytest.mark.parametrize("fallbacks", [0, 3, FALLBACK_VECTOR_MIN_LANES + 1, BLOCK])
+def test_lane_loop_gives_the_bits_of_the_per_tet_law(fallbacks):
+    """A block with ``fallbacks`` lanes that Newton cannot do (inverted, nearly flat, strongly
+    stretched: the scalar and the packed fallback loops) among near-rest lanes: every lane's
+    forces are exactly -P of ``corotated_first_piola``, whichever path the block took."""
+    rng = np.random.default_rng(303)
+    hard = ("inverted", "nearly flat", "inverted, stretch ratio up to 1e3")
+    Fs = np.array([family(hard[j % 3], rng) if j < fallbacks
+                   else rotation(rng) @ (np.eye(3) + 0.05 * rng.normal(size=(3, 3))) for j in range(BLOCK)])
+    Fs = Fs[rng.permutation(BLOCK)]
+    assert sum(not newton_polar_rotation_jit(tuple(F.ravel()))[1] for F in Fs) == fallbacks
+    buf = block_of(Fs)
+    corotated_block(buf, LAM, MU)
+    for j in range(BLOCK):
+        P = P_of(Fs[j])
+        for c in range(1, 4):
+            for k in range(3):
+                assert buf[(ROW_F + 3 * c + k) * BLOCK + j] == -P[k, c - 1], (j, c, k)
+
+
+@pytest.mark.parametrize("inverted", [False, True])
+def test_blocked_corotated_forces_are_minus_the_energy_gradient(inverted):
+    """One tet through the vectorised step (Newton path, or the Jacobi fallback when inverted):
+    forces against central differences of the reference energy ``naive.elastic_energy``."""
+    rng = np.random.default_rng(304)
+    X = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+    tets = np.array([[0, 1, 2, 3]])
+    body = Body(X, tets, "csr")
+    for _ in range(3):
+        x = X @ rotation(rng).T + 0.1 * rng.normal(size=(4, 3))
+        if inverted:
+            x[3] = x[0] - 0.6 * (x[3] - x[0]) + 0.05 * rng.normal(size=3)     # through the opposite face
+        volume = np.linalg.det((x[1:] - x[0]).T)
+        assert (volume < 0) == inverted
+        f = body.forces(x, "corotated", LAM, MU)
+        h = 1e-6
+        f_fd = np.empty_like(x)
+        for i in range(4):
+            for k in range(3):
+                xp, xm = x.copy(), x.copy()
+                xp[i, k] += h
+                xm[i, k] -= h
+                f_fd[i, k] = -(naive.elastic_energy(xp, X, tets, "corotated", LAM, MU)
+                               - naive.elastic_energy(xm, X, tets, "corotated", LAM, MU)) / (2.0 * h)
+        assert np.linalg.norm(f - f_fd) < 1e-6 * np.linalg.norm(f)
