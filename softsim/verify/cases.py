@@ -28,21 +28,6 @@ from .driver import Run, face_mask, tet_deformation_gradients, unique_edges
 MODELS = tuple(MODEL_IDS)
 # Half-width [m] of the selection boxes around a face.
 BOX = 1e-6
-# Models whose step costs far more per tet (corotated: an SVD per tet, measured 30-40x the cost of
-# stvk on near-rest states).  Their ladders keep only the first ``costly_rungs`` rungs of a case
-# (``quick_costly_rungs`` in quick mode; 0: the run is skipped).
-COSTLY_MODELS = ("corotated",)
-
-
-def _rungs(ladder, quick, model, p, offset=0):
-    """``ladder``, cut for a costly model to the case's ``quick_costly_rungs`` / ``costly_rungs``
-    (plus ``offset``)."""
-    if model in COSTLY_MODELS:
-        keep = (p.quick_costly_rungs if quick else p.costly_rungs) + offset
-        return tuple(ladder)[:max(keep, 0)]
-    return tuple(ladder)
-
-
 @dataclass(frozen=True)
 class VerifyRow:
     """One run of a case, one measured quantity.
@@ -154,8 +139,6 @@ class Cantilever:
     quick_divisions: tuple = (2, 3, 4)
     # Divisions run only for these models (the finest rung is the costly one).
     finest_models: tuple = ("stvk",)
-    costly_rungs: int = 2
-    quick_costly_rungs: int = 0
     rest_tolerance: float = 2e-6     # stop when the tip moves less than this fraction per 1/omega_1
 
 
@@ -172,7 +155,6 @@ def run_cantilever(p=Cantilever(), quick=False, models=MODELS, mutate=None, prog
     for model in models:
         runs = []
         mine = divisions if quick or model in p.finest_models else divisions[:-1]
-        mine = _rungs(mine, quick, model, p)
         for n in mine:
             scene = _structured_box((L, t, t), t / n, _material(model, p), gravity=[0.0, 0.0, -p.gravity],
                                     damping=2.0 * omega, fixed=[_clamp()])
@@ -246,8 +228,6 @@ class AxialVibration:
     dt_divisions: int = 20
     dt_factors: tuple = (1.0, 0.5, 0.25, 0.125)
     quick_dt_factors: tuple = (1.0, 0.5, 0.25)
-    costly_rungs: int = 3
-    quick_costly_rungs: int = 2
 
 
 def fit_period(times, values, guess):
@@ -308,12 +288,12 @@ def run_axial_vibration(p=AxialVibration(), quick=False, models=MODELS, mutate=N
             done[(n, factor)] = (run, fit_period(times, values, period))
             return done[(n, factor)]
 
-        for n in _rungs(divisions, quick, model, p):
+        for n in divisions:
             run, value = measure(n, 1.0)
             rows.append(_row(case, "period", run, "element_size", L / n, value, period, "4L/sqrt(E/rho)",
                              "nu = 0: the continuous 3D bar is the 1D bar"))
             _report(progress, rows[-1])
-        for factor in _rungs(factors, quick, model, p, -1):
+        for factor in factors:
             run, value = measure(p.dt_divisions, factor)
             rows.append(_row(case, "period", run, "dt", run.dt, value, period, "4L/sqrt(E/rho)",
                              f"dt = {factor:g} x auto on the L/{p.dt_divisions} mesh"))
@@ -346,8 +326,6 @@ class Traction:
     element_sizes: tuple = (0.1, 0.05)
     quick_element_sizes: tuple = (0.1, 0.05)
     size_load_ratio: float = 1e-3
-    costly_rungs: int = 3
-    quick_costly_rungs: int = 1
     rest_tolerance: float = 1e-9
 
 
@@ -409,9 +387,9 @@ def run_traction(p=Traction(), quick=False, models=MODELS, mutate=None, progress
             rows.append(_row(case, "contraction, exact stretch", run, ladder, refinement, contraction, (1.0 - b) * W,
                              "the law's homogeneous stretch", exact))
 
-        for load in _rungs(loads, quick, model, p):
+        for load in loads:
             add("load", load, p.element_size, load)
-        for h in _rungs(sizes, quick, model, p):
+        for h in sizes:
             add("element_size", h, h, p.size_load_ratio)
     return rows
 
@@ -442,8 +420,6 @@ class RigidMotion:
     spin_axis: tuple = (0.36, 0.48, 0.8)
     turns: float = 1.0
     samples_per_turn: int = 64
-    costly_rungs: int = 1            # the spin (the fall is cheap: every model runs it)
-    quick_costly_rungs: int = 0
 
 
 def run_rigid_motion(p=RigidMotion(), quick=False, models=MODELS, mutate=None, progress=None):
@@ -476,8 +452,6 @@ def run_rigid_motion(p=RigidMotion(), quick=False, models=MODELS, mutate=None, p
                              f"value: drop / (g t^2 / 2); symplectic Euler: dt / t = {run.dt / run.time:.3g}"))
             _report(progress, rows[-1])
 
-        if not _rungs((1,), quick, model, p):
-            continue
         scene = _structured_box((a, a, a), p.spin_element_size, _material(model, p),
                                 angular_velocity=[float(v) for v in omega * axis])
         run = Run(scene, mutate=mutate)
@@ -625,8 +599,6 @@ class Energy:
     samples_per_period: int = 32
     dt_factors: tuple = (1.0, 0.5, 0.25, 0.125)
     quick_dt_factors: tuple = (1.0, 0.5, 0.25)
-    costly_rungs: int = 2
-    quick_costly_rungs: int = 1
 
 
 def run_energy(p=Energy(), quick=False, models=MODELS, mutate=None, progress=None):
@@ -639,7 +611,7 @@ def run_energy(p=Energy(), quick=False, models=MODELS, mutate=None, progress=Non
     factors = p.quick_dt_factors if quick else p.dt_factors
     rows = []
     for model in models:
-        for factor in _rungs(factors, quick, model, p):
+        for factor in factors:
             scene = _structured_box((L, t, t), p.element_size, _material(model, p), gravity=[0.0, 0.0, -p.gravity],
                                     fixed=[_clamp()])
             run = Run(scene, dt_factor=factor, mutate=mutate)
