@@ -15,7 +15,7 @@ from softsim.kernels.deformation import deformation_gradient, edge_matrix
 from softsim.kernels.energy import elastic_energy
 from softsim.kernels.forces import elastic_forces
 from softsim.kernels.rest_state import lumped_masses, rest_state, vertex_tet_csr
-from softsim.kernels.svd3 import svd3_inversion_aware
+from softsim.kernels.polar3 import jacobi_polar_rotation
 from softsim.materials.lame import lame_parameters
 from softsim.materials.models import (
     INVERSION_SAFE,
@@ -271,17 +271,21 @@ def _svd_cases(rng):
 
 
 def test_inversion_aware_svd():
-    """U, V proper rotations; U diag(s) V^T = F; s[0] >= s[1] >= |s[2]|, |s| the singular values,
-    and s[2] < 0 exactly when det F < 0: the reflection sits in the smallest singular value.
-    Random, inverted, repeated-singular-value and degenerate (rank 2, rank 1, zero) F."""
+    """The Jacobi SVD of ``polar3`` on random, inverted, repeated-singular-value and degenerate
+    (rank 2, rank 1, zero) F: R a proper rotation; ``R^T F = V diag(s) V^T`` symmetric with
+    eigenvalues s; s[0] >= s[1] >= |s[2]|, |s| the singular values, and s[2] < 0 exactly when
+    det F < 0: the reflection sits in the smallest singular value."""
     rng = np.random.default_rng(17)
     for F, tol in _svd_cases(rng):
-        U, s, V = svd3_inversion_aware(tuple(F.ravel()))
+        R, *s = jacobi_polar_rotation(tuple(F.ravel()))
+        R, s = np.array(R).reshape(3, 3), np.array(s)
         scale = max(np.abs(F).max(), 1.0)
-        for Q in (U, V):
-            np.testing.assert_allclose(Q.T @ Q, np.eye(3), rtol=0, atol=1e-12)
-            assert np.linalg.det(Q) == pytest.approx(1.0, abs=1e-12)
-        np.testing.assert_allclose(U @ np.diag(s) @ V.T, F, rtol=0, atol=tol * scale)
+        np.testing.assert_allclose(R.T @ R, np.eye(3), rtol=0, atol=1e-12)
+        assert np.linalg.det(R) == pytest.approx(1.0, abs=1e-12)
+        S = R.T @ F
+        np.testing.assert_allclose(S, S.T, rtol=0, atol=2 * tol * scale)
+        np.testing.assert_allclose(np.sort(np.linalg.eigvalsh(0.5 * (S + S.T))), np.sort(s), rtol=0,
+                                   atol=2 * tol * scale)
         noise = 1e-14 * scale                  # rank 1: s[1] and s[2] are both round-off
         assert s[0] >= s[1] - noise and s[1] >= abs(s[2]) - noise and s[1] >= -noise
         np.testing.assert_allclose(np.abs(s), np.linalg.svd(F, compute_uv=False), rtol=0, atol=tol * scale)

@@ -11,7 +11,7 @@ moved into the smallest singular value, so that ``R = U V^T`` has det +1 and max
   that is ``R``; the last step's size tells whether it converged.  About 60 flops and one division
   a step: the fast path, for the tets of a simulation that are neither inverted, nearly flat nor
   stretched by more than about 3x.
-- ``jacobi_rotation_and_stretch``: the SVD of ``svd3`` without its arrays and branches (after
+- ``jacobi_rotation_and_stretch``: a Jacobi SVD without arrays or branches (after
   McAdams et al. 2011, "Computing the singular value decomposition of 3x3 matrices with minimal
   branching and elementary floating point operations"):
 
@@ -22,7 +22,7 @@ moved into the smallest singular value, so that ``R = U V^T`` has det +1 and max
   3. ``U`` by Gram-Schmidt on the columns of ``B``, ``u2 = u0 x u1`` (det U = +1); ``s_k = u_k .
      b_k``, so ``s_2 < 0`` exactly when det F < 0.
 
-  Any F: degenerate ones (rank 2, rank 1, zero) get the fallbacks of ``svd3`` (``u0 = v0`` when
+  Any F: degenerate ones (rank 2, rank 1, zero) get fallbacks (``u0 = v0`` when
   ``b0 = 0``; ``u1`` a unit vector orthogonal to ``u0`` when ``b1`` is parallel to it), a finite
   proper rotation.  About 8 times the cost of the Newton path.
 
@@ -43,7 +43,8 @@ from .jit import njit, njit_inline
 # near a rotation; large rotations with strain 0.3; singular values spread by up to 1e3, inverted
 # or not; nearly repeated; nearly flat, s2 from 1e-12 to 1e-4): the largest error of R against
 # numpy.linalg.svd, times the conditioning (s1 + s2) / s0, is 1e10-1e11 eps after 3 sweeps and
-# 40-450 eps (rounding, the same as with 5 or 8 sweeps and as svd3's 30-270) after 4.
+# 40-450 eps (rounding, the same as with 5 or 8 sweeps and as the earlier allocating SVD's 30-270)
+# after 4.
 JACOBI_SWEEPS = 4
 
 # Newton's polar iteration from X = F: this many steps (written out in newton_polar_rotation).
@@ -61,7 +62,7 @@ NEWTON_ITERATIONS = 6
 NEWTON_STEP_TOLERANCE = 1e-7
 
 # u1 falls back to a unit vector orthogonal to u0 when |b1 - (b1 . u0) u0| is below this times |b0|
-# (b1 parallel to b0: F of rank 1), as in svd3.
+# (b1 parallel to b0: F of rank 1).
 RANK_ONE_TOLERANCE = 1e-14
 
 
