@@ -132,7 +132,7 @@ def advance(x, v, step_start, step_count, dt,
     """Advance positions ``x`` and velocities ``v`` (node_count, 3) [m, m/s] in place by ``step_count`` steps.
 
     step_start: index of the first step (time ``step_start * dt`` [s]); dt [s].
-    blocks: ``(block_tets, block_rest, tet_count, part_blocks, colour_parts)`` of a
+    blocks: ``(block_tets, block_rest, tet_count, part_offsets, colour_parts)`` of a
     ``kernels.blocked.BlockLayout``; colour_offsets: (colours + 1,) into colour_parts; model id, Lame
     lam, mu [Pa].
     scatter True: the forces are added into ``vertex_forces`` (node_count, 3), one colour of parts
@@ -148,7 +148,7 @@ def advance(x, v, step_start, step_count, dt,
     """
     node_count = x.shape[0]
     block_count = blocks[0].shape[0]
-    part_blocks = blocks[3]
+    part_offsets = blocks[3]
     colour_parts = blocks[4]
     if scatter:
         for i in prange(node_count):
@@ -160,8 +160,8 @@ def advance(x, v, step_start, step_count, dt,
         if scatter:
             for colour in range(colour_offsets.shape[0] - 1):
                 for k in prange(colour_offsets[colour], colour_offsets[colour + 1]):
-                    first = colour_parts[k] * part_blocks
-                    block_range_forces(x, blocks, first, min(first + part_blocks, block_count),
+                    part = colour_parts[k]
+                    block_range_forces(x, blocks, part_offsets[part], part_offsets[part + 1],
                                        model, lam, mu, scatter, vertex_forces, corner_forces)
         else:
             chunks = min(threads, block_count)
@@ -192,7 +192,7 @@ def step_arguments(model, work):
     layout = model.blocks
     n, m = model.node_count, model.tet_count
     flat = work.reshape(-1)
-    blocks = (layout.tets, layout.rest, layout.tet_count, layout.part_blocks, layout.colour_parts)
+    blocks = (layout.tets, layout.rest, layout.tet_count, layout.part_offsets, layout.colour_parts)
     if layout.scatter == "colour":
         vertex_forces = flat[:3 * n].reshape(n, 3) if flat.size >= 3 * n else np.empty((n, 3))
         corner_forces = np.empty((0, 4, 3))

@@ -35,6 +35,7 @@ from ..materials.models import (
     neohookean_first_piola,
     stvk_first_piola,
 )
+from ..mesh.reorder import SLABS
 from .jit import njit, njit_inline
 from .polar3 import jacobi_rotation_and_stretch, newton_polar_rotation
 
@@ -56,12 +57,13 @@ FALLBACK_VECTOR_MIN_LANES = 9
 # Scatter of the corner forces: ``colour`` adds each block's forces straight into the vertex forces,
 # one colour of parts at a time (no per-tet buffer, a barrier per colour); ``csr`` writes them
 # into a per-(tet, corner) buffer that each vertex then gathers (two barriers per step, 96 B/tet
-# more traffic).  Below this many tets the colour barriers cost more than the buffer saves.
-COLOUR_MIN_TETS = 50_000
-# The blocks are grouped into about this many parts of consecutive blocks (compact in space: the
-# tets are in Morton order); parts sharing no vertex get one colour and are scattered in parallel.
-# Few, large parts need few colours (about 4 on a beam), hence few barriers per step.
-PARTS = 32
+# more traffic).  Below this many tets the colour scatter's barriers cost more than the buffer
+# saves: with the slab parts (two colours), colour / csr on the beam, 2 threads, medians of 7
+# interleaved rounds: 0.92 at 5k tets, 1.14 at 10k, 1.30 at 20k, 1.81 at 100k.
+COLOUR_MIN_TETS = 10_000
+# The blocks are grouped into parts of consecutive blocks, one per slab of ``mesh.reorder`` (the
+# tets are ordered slab by slab); parts sharing no vertex get one colour and are scattered in
+# parallel.  Alternate slabs make two colours of equal parts: two barriers per step.
 
 
 @dataclass(frozen=True)
@@ -69,15 +71,15 @@ class BlockLayout:
     """The tets of a model in blocks of ``BLOCK`` for the vectorised step (see the module docstring).
 
     tets (block_count, 4, BLOCK) uint32; rest (block_count, 10, BLOCK) [1/m, m^3]; tet_count: real
-    tets (the last block is padded); part_blocks: blocks per part (part p is blocks
-    ``p * part_blocks`` up to the next part's first); colour_offsets (colours + 1,), colour_parts
+    tets (the last block is padded); part_offsets (part_count + 1,): part p is blocks
+    ``part_offsets[p]`` to ``part_offsets[p + 1] - 1``; colour_offsets (colours + 1,), colour_parts
     (part_count,): parts grouped by colour; scatter: ``"colour"`` or ``"csr"``.
     """
 
     tets: np.ndarray
     rest: np.ndarray
     tet_count: int
-    part_blocks: int
+    part_offsets: np.ndarray
     colour_offsets: np.ndarray
     colour_parts: np.ndarray
     scatter: str
@@ -90,12 +92,24 @@ class BlockLayout:
 def build_block_layout(tets, Dm_inv, rest_volume, node_count, scatter=None):
     """The ``BlockLayout`` of a mesh; ``scatter`` None picks by size (``COLOUR_MIN_TETS``)."""
     block_tets, block_rest = block_layout(tets, Dm_inv, rest_volume)
-    part_blocks = max(1, -(-block_tets.shape[0] // PARTS))
-    colour_offsets, colour_parts = part_colouring(block_tets, tets.shape[0], node_count, part_blocks)
+    part_offsets = slab_parts(block_tets, node_count)
+    colour_offsets, colour_parts = part_colouring(block_tets, tets.shape[0], node_count, part_offsets)
     if scatter is None:
         scatter = "colour" if tets.shape[0] >= COLOUR_MIN_TETS else "csr"
-    return BlockLayout(tets=block_tets, rest=block_rest, tet_count=int(tets.shape[0]), part_blocks=part_blocks,
+    return BlockLayout(tets=block_tets, rest=block_rest, tet_count=int(tets.shape[0]), part_offsets=part_offsets,
                        colour_offsets=colour_offsets, colour_parts=colour_parts, scatter=scatter)
+
+
+def slab_parts(block_tets, node_count, slabs=SLABS):
+    """``part_offsets`` (parts + 1,): a part per slab of ``mesh.reorder.slab_order``, a block going to
+    the slab of its first tet's smallest vertex (vertex i is in slab ``i * slabs // node_count``:
+    the slabs hold equal vertex counts, in order).  Empty parts are dropped.  With tets in any
+    other order the parts are still contiguous (the colouring checks what they share), only
+    perhaps unbalanced."""
+    first_vertex = block_tets[:, :, 0].min(axis=1).astype(np.int64)
+    slab = np.maximum.accumulate(first_vertex * slabs // max(node_count, 1))
+    starts = np.searchsorted(slab, np.arange(slabs), side="left")
+    return np.unique(np.append(starts, block_tets.shape[0])).astype(np.int64)
 
 
 def block_layout(tets, Dm_inv, rest_volume):
@@ -118,9 +132,9 @@ def block_layout(tets, Dm_inv, rest_volume):
     return block_tets.astype(np.uint32), block_rest
 
 
-def part_colouring(block_tets, tet_count, node_count, part_blocks):
-    """``(colour_offsets, colour_parts)``: parts of ``part_blocks`` consecutive blocks, grouped so that
-    no two parts of a colour share a vertex.
+def part_colouring(block_tets, tet_count, node_count, part_offsets):
+    """``(colour_offsets, colour_parts)``: the parts of consecutive blocks given by ``part_offsets``,
+    grouped so that no two parts of a colour share a vertex.
 
     Greedy colouring in part order.  The parts of colour ``c`` are
     ``colour_parts[colour_offsets[c]:colour_offsets[c + 1]]``, in increasing order: scattering one
@@ -129,11 +143,12 @@ def part_colouring(block_tets, tet_count, node_count, part_blocks):
     run, whatever the thread count.
     """
     block_count = block_tets.shape[0]
-    part_count = -(-block_count // part_blocks)
+    part_count = part_offsets.shape[0] - 1
     lanes = np.arange(block_count * BLOCK).reshape(block_count, 1, BLOCK)
     real = np.broadcast_to(lanes < tet_count, block_tets.shape)
     vertex = block_tets[real].astype(np.int64)
-    part = np.broadcast_to((np.arange(block_count) // part_blocks)[:, None, None], block_tets.shape)[real]
+    block_part = np.repeat(np.arange(part_count), np.diff(part_offsets))
+    part = np.broadcast_to(block_part[:, None, None], block_tets.shape)[real]
     pairs = np.unique(vertex * part_count + part)
     vertex, part = pairs // part_count, pairs % part_count
     # vertex -> parts (CSR, from the sorted pairs) and part -> vertices
