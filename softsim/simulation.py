@@ -15,7 +15,7 @@ import numba
 import numpy as np
 
 from .config import scene_to_yaml
-from .integrators.symplectic_euler import advance, step_arguments, work_buffer
+from .integrators.symplectic_euler import advance, step_arguments, step_threads, work_buffer
 from .errors import ConfigError, SimulationError
 from .integrators.guard import RECHECK_STEPS, FrameGuard
 from .integrators.stability import exact_stable_step, nodal_frequency_bound
@@ -170,13 +170,19 @@ def frame_fields(model, state, fields):
 def step(model, state, dt, step_count, damping, corner_forces):
     """Advance ``state`` in place by ``step_count`` symplectic-Euler steps of ``dt`` [s]."""
     blocks, colour_offsets, scatter, offsets, slots, vertex_forces, corner = step_arguments(model, corner_forces)
-    advance(state.x, state.v, state.step, step_count, dt,
-            blocks, colour_offsets, scatter, model.material_id, model.lam, model.mu, offsets, slots,
-            vertex_forces, corner,
-            model.inv_mass, model.external_accel,
-            model.held, state.held_start, model.held_velocity,
-            model.ground_arguments(), math.exp(-damping * dt) if damping > 0.0 else None,
-            numba.get_num_threads())
+    available = numba.get_num_threads()
+    threads = step_threads(model.tet_count, available)
+    numba.set_num_threads(threads)
+    try:
+        advance(state.x, state.v, state.step, step_count, dt,
+                blocks, colour_offsets, scatter, model.material_id, model.lam, model.mu, offsets, slots,
+                vertex_forces, corner,
+                model.inv_mass, model.external_accel,
+                model.held, state.held_start, model.held_velocity,
+                model.ground_arguments(), math.exp(-damping * dt) if damping > 0.0 else None,
+                threads)
+    finally:
+        numba.set_num_threads(available)
     state.step += step_count
 
 

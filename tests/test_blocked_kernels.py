@@ -123,3 +123,15 @@ def test_blocked_forces_are_bitwise_deterministic_on_any_thread_count(scatter):
     finally:
         numba.set_num_threads(threads)
     assert np.abs(f1.sum(axis=0)).max() < 1e-9 * np.abs(f1).max()     # Newton's third law
+
+
+def test_small_meshes_step_on_fewer_threads():
+    """A thread per ``TETS_PER_THREAD`` tets, at least one, at most those available."""
+    from softsim.integrators.symplectic_euler import TETS_PER_THREAD, step_threads
+
+    assert step_threads(0, 2) == 1
+    assert step_threads(2 * TETS_PER_THREAD - 1, 2) == 1
+    assert step_threads(2 * TETS_PER_THREAD, 2) == 2
+    assert step_threads(10 ** 7, 2) == 2
+    assert step_threads(10 ** 7, 16) == 16
+    assert step_threads(5 * TETS_PER_THREAD, 16) == 5

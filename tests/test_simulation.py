@@ -497,7 +497,10 @@ def busy_scene(scene):
     )
 
 
-def test_runs_are_bit_identical_whatever_the_thread_count(scene):
+def test_runs_are_bit_identical_whatever_the_thread_count(scene, monkeypatch):
+    import softsim.integrators.symplectic_euler as symplectic_euler
+
+    monkeypatch.setattr(symplectic_euler, "TETS_PER_THREAD", 1)     # a small mesh on every thread
     s = busy_scene(scene)
     results = []
     threads = numba.get_num_threads()
@@ -506,6 +509,7 @@ def test_runs_are_bit_identical_whatever_the_thread_count(scene):
             numba.set_num_threads(count)
             prepared, state, corner = start(s)
             run_steps(prepared, state, corner, prepared.plan.total_steps, chunk=7)
+            assert numba.get_num_threads() == count          # the step gives its threads back
             results.append((state.x.copy(), state.v.copy()))
     finally:
         numba.set_num_threads(threads)

@@ -56,11 +56,14 @@ FALLBACK_VECTOR_MIN_LANES = 9
 
 # Scatter of the corner forces: ``colour`` adds each block's forces straight into the vertex forces,
 # one colour of parts at a time (no per-tet buffer, a barrier per colour); ``csr`` writes them
-# into a per-(tet, corner) buffer that each vertex then gathers (two barriers per step, 96 B/tet
-# more traffic).  Below this many tets the colour scatter's barriers cost more than the buffer
-# saves: with the slab parts (two colours), colour / csr on the beam, 2 threads, medians of 7
-# interleaved rounds: 0.92 at 5k tets, 1.14 at 10k, 1.30 at 20k, 1.81 at 100k.
-COLOUR_MIN_TETS = 10_000
+# into a per-(tet, corner) buffer that each vertex then gathers (96 B/tet more traffic).  Colour is
+# the default at every size: beam, M tet-steps/s, medians of 7 interleaved rounds (passive waits),
+#     tets      colour 1 thread   colour 2 threads   csr 1 thread   csr 2 threads
+#     2k        51.3              11.9               28.1           14.2
+#     10k       44.4              34.8               32.2           33.0
+#     40k       52.3              58.2               30.7           44.7
+# (small meshes step on one thread: ``integrators.symplectic_euler.step_threads``); csr stays for
+# comparison (``benchmarks``).
 # The blocks are grouped into parts of consecutive blocks, one per slab of ``mesh.reorder`` (the
 # tets are ordered slab by slab); parts sharing no vertex get one colour and are scattered in
 # parallel.  Alternate slabs make two colours of equal parts: two barriers per step.
@@ -90,12 +93,12 @@ class BlockLayout:
 
 
 def build_block_layout(tets, Dm_inv, rest_volume, node_count, scatter=None):
-    """The ``BlockLayout`` of a mesh; ``scatter`` None picks by size (``COLOUR_MIN_TETS``)."""
+    """The ``BlockLayout`` of a mesh; ``scatter``: ``"colour"`` (None: the default) or ``"csr"``."""
     block_tets, block_rest = block_layout(tets, Dm_inv, rest_volume)
     part_offsets = slab_parts(block_tets, node_count)
     colour_offsets, colour_parts = part_colouring(block_tets, tets.shape[0], node_count, part_offsets)
     if scatter is None:
-        scatter = "colour" if tets.shape[0] >= COLOUR_MIN_TETS else "csr"
+        scatter = "colour"
     return BlockLayout(tets=block_tets, rest=block_rest, tet_count=int(tets.shape[0]), part_offsets=part_offsets,
                        colour_offsets=colour_offsets, colour_parts=colour_parts, scatter=scatter)
 
