@@ -109,7 +109,8 @@ def update_vertex(x, v, i, fx, fy, fz, dt, t_next, inv_mass, external_accel, hel
     v[i, 1] += dt * (fy * w + external_accel[i, 1])
     v[i, 2] += dt * (fz * w + external_accel[i, 2])
     if ground is not None:
-        ground_contact(x, v, i, dt, inv_mass, ground)
+        if x[i, 2] < ground[0]:       # below the ground's height: only then unpack the tuple of arrays
+            ground_contact(x, v, i, dt, inv_mass, ground)
     if damping_factor is not None:
         v[i, 0] *= damping_factor
         v[i, 1] *= damping_factor
