@@ -92,10 +92,11 @@ class BlockLayout:
         return self.colour_offsets.shape[0] - 1
 
 
-def build_block_layout(tets, Dm_inv, rest_volume, node_count, scatter=None):
-    """The ``BlockLayout`` of a mesh; ``scatter``: ``"colour"`` (None: the default) or ``"csr"``."""
+def build_block_layout(tets, Dm_inv, rest_volume, node_count, scatter=None, slabs=SLABS):
+    """The ``BlockLayout`` of a mesh numbered by ``mesh.reorder.renumber_for_locality`` with as many
+    ``slabs``; ``scatter``: ``"colour"`` (None: the default) or ``"csr"``."""
     block_tets, block_rest = block_layout(tets, Dm_inv, rest_volume)
-    part_offsets = slab_parts(block_tets, node_count)
+    part_offsets = slab_parts(block_tets, node_count, slabs)
     colour_offsets, colour_parts = part_colouring(block_tets, tets.shape[0], node_count, part_offsets)
     if scatter is None:
         scatter = "colour"

@@ -11,13 +11,15 @@ parts (100k-tet beam, 2 threads: 47.6 against 73.9 M tet-steps/s with slabs).  T
 maps back to the input order.
 """
 
+import numba
 import numpy as np
 
 # Slabs along the longest axis (and parts of the colour scatter, ``kernels.blocked.slab_parts``): even,
 # so that alternate slabs make two colours, and a multiple of 4, so that each colour's parts split
-# evenly over 1, 2 or 4 threads.  A slab thinner than about two elements lets non-neighbouring
-# parts share vertices: the colouring then simply uses more colours.
-SLABS = 8
+# evenly over 1, 2 or 4 threads; 8, or 2 per thread on machines with more than 4 (Numba's thread
+# pool size), so that every thread has a part of each colour.  A slab thinner than about two elements lets
+# non-neighbouring parts share vertices: the colouring then simply uses more colours.
+SLABS = 8 * max(1, -(-numba.config.NUMBA_NUM_THREADS // 4))
 # Thinner slabs per slab, visited in turn (see ``slab_order``).
 SUBSLABS = 8
 
@@ -58,13 +60,13 @@ def slab_order(points, slabs=SLABS):
     return np.lexsort((morton_rank, thin))
 
 
-def renumber_for_locality(points, tets):
+def renumber_for_locality(points, tets, slabs=SLABS):
     """``(points, tets, vertex_order, tet_order)`` renumbered for locality (``slab_order``).
 
     New vertex ``i`` is input vertex ``vertex_order[i]``; new tet ``e`` is input tet ``tet_order[e]``
     (tets sorted by their smallest new vertex index).
     """
-    vertex_order = slab_order(points)
+    vertex_order = slab_order(points, slabs)
     new_index = np.empty_like(vertex_order)
     new_index[vertex_order] = np.arange(vertex_order.size)
     renumbered = new_index[tets]
