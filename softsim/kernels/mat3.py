@@ -7,7 +7,7 @@ tetrahedra.  Every function is a pure, serial Numba function.
 
 import numpy as np
 
-from .jit import njit
+from .jit import njit, njit_inline
 
 
 @njit
@@ -119,3 +119,14 @@ def mat3_to_array(a):
         for c in range(3):
             out[r, c] = a[3 * r + c]
     return out
+
+
+# The same functions inlined at Numba IR level (``jit.njit_inline``), for the lane loops of
+# ``kernels.blocked`` and ``kernels.polar3``: as ordinary calls LLVM finds them too large to inline,
+# and a loop with a call in it does not vectorise.
+mat3_mul_inline = njit_inline(mat3_mul.py_func)
+mat3_mul_transpose_b_inline = njit_inline(mat3_mul_transpose_b.py_func)
+mat3_scale_inline = njit_inline(mat3_scale.py_func)
+mat3_add_scaled_inline = njit_inline(mat3_add_scaled.py_func)
+mat3_ddot_inline = njit_inline(mat3_ddot.py_func)
+mat3_cofactor_inline = njit_inline(mat3_cofactor.py_func)

@@ -1,5 +1,6 @@
-"""The rotation of the corotated model for one 3x3 ``F``, on scalars: no arrays, no calls, no
-data-dependent branches, so that the lane loops of ``kernels.blocked`` compile to packed SIMD code.
+"""The rotation of the corotated model for one 3x3 ``F``, on scalars: no arrays, no calls but
+inlined ones (``kernels.mat3``'s ``*_inline``), no data-dependent branches, so that the lane loops
+of ``kernels.blocked`` compile to packed SIMD code.
 
 The rotation is that of the inversion-aware SVD (Irving, Teran & Fedkiw 2004): ``F = U diag(s)
 V^T`` with ``U``, ``V`` proper rotations and a reflection in ``F`` (det F < 0, an inverted element)
@@ -38,6 +39,7 @@ that of F).
 import math
 
 from .jit import njit, njit_inline
+from .mat3 import mat3_add_scaled_inline, mat3_cofactor_inline, mat3_ddot_inline, mat3_scale_inline
 
 # Cyclic Jacobi sweeps (3 rotations each) on F^T F.  Measured on 10^6 F per family (random normal;
 # near a rotation; large rotations with strain 0.3; singular values spread by up to 1e3, inverted
@@ -224,21 +226,9 @@ def newton_polar_step(Y, k):
     iteration ``X <- (X + X^-T) / 2`` for the polar factor, carried as ``Y = 2^k X`` so that no
     step scales by 1/2 (a power of two: the same bits as halving every step).  Infinite or NaN
     entries when Y is singular."""
-    y00, y01, y02, y10, y11, y12, y20, y21, y22 = Y
-    c00 = y11 * y22 - y12 * y21
-    c01 = y12 * y20 - y10 * y22
-    c02 = y10 * y21 - y11 * y20
-    c10 = y02 * y21 - y01 * y22
-    c11 = y00 * y22 - y02 * y20
-    c12 = y01 * y20 - y00 * y21
-    c20 = y01 * y12 - y02 * y11
-    c21 = y02 * y10 - y00 * y12
-    c22 = y00 * y11 - y01 * y10
-    det = y00 * c00 + y01 * c01 + y02 * c02
-    h = float(4 ** k) / det
-    return ((y00 + h * c00, y01 + h * c01, y02 + h * c02,
-             y10 + h * c10, y11 + h * c11, y12 + h * c12,
-             y20 + h * c20, y21 + h * c21, y22 + h * c22), det)
+    C = mat3_cofactor_inline(Y)
+    det = Y[0] * C[0] + Y[1] * C[1] + Y[2] * C[2]
+    return mat3_add_scaled_inline(Y, C, float(4 ** k) / det), det
 
 
 @njit_inline
@@ -257,17 +247,9 @@ def newton_polar_rotation(F):
     Y, _ = newton_polar_step(Y, 4)
     Z, _ = newton_polar_step(Y, 5)                # Z = 2^6 R, Y = 2^5 X_5
     q = 1.0 / 2.0 ** NEWTON_ITERATIONS
-    R = (q * Z[0], q * Z[1], q * Z[2], q * Z[3], q * Z[4], q * Z[5], q * Z[6], q * Z[7], q * Z[8])
-    d0 = Z[0] - 2.0 * Y[0]
-    d1 = Z[1] - 2.0 * Y[1]
-    d2 = Z[2] - 2.0 * Y[2]
-    d3 = Z[3] - 2.0 * Y[3]
-    d4 = Z[4] - 2.0 * Y[4]
-    d5 = Z[5] - 2.0 * Y[5]
-    d6 = Z[6] - 2.0 * Y[6]
-    d7 = Z[7] - 2.0 * Y[7]
-    d8 = Z[8] - 2.0 * Y[8]
-    step = q * q * (d0 * d0 + d1 * d1 + d2 * d2 + d3 * d3 + d4 * d4 + d5 * d5 + d6 * d6 + d7 * d7 + d8 * d8)
+    D = mat3_add_scaled_inline(Z, Y, -2.0)          # 2^6 (X_6 - X_5)
+    step = q * q * mat3_ddot_inline(D, D)
+    R = mat3_scale_inline(Z, q)
     return R, det > 0.0 and step <= NEWTON_STEP_TOLERANCE * NEWTON_STEP_TOLERANCE
 
 
