@@ -21,7 +21,7 @@ from .integrators.guard import RECHECK_STEPS, FrameGuard
 from .integrators.stability import exact_stable_step, nodal_frequency_bound
 from .integrators.timestep import (AUTO_EIGEN_ITERATIONS, AUTO_EIGEN_MIN_STEPS, AUTO_EIGEN_SAFETY, AUTO_SAFETY,
                                    dilatational_wave_speed, plan_time)
-from .io.hdf5 import RunWriter, check_writable, frames_written, read_resume_state
+from .io.hdf5 import RunWriter, check_writable, frames_written, free_bytes, read_resume_state
 from .kernels.energy import elastic_energy, gravity_energy, kinetic_energy
 from .kernels.fields import tet_fields
 from .mesh import build_mesh
@@ -330,8 +330,6 @@ def estimate_run(prepared, output_path):
     """A ``RunEstimate`` for ``prepared``: its speed is measured by a short burst of steps on a copy
     of the initial state, only when the run could be long (the burst also compiles the kernels,
     which the run would do anyway)."""
-    import shutil
-
     scene, model, plan = prepared.scene, prepared.model, prepared.plan
     tet_steps = float(model.tet_count) * plan.total_steps * prepared.substeps
     seconds, speed = None, OPTIMISTIC_TET_STEPS_PER_S
@@ -348,7 +346,7 @@ def estimate_run(prepared, output_path):
         speed = model.tet_count * (steps // 2) * prepared.substeps / max(elapsed, 1e-9)
         seconds = tet_steps / speed
     output_bytes = len(plan.frame_steps) * frame_bytes(model.node_count, model.tet_count, scene.output.fields)
-    free = shutil.disk_usage(Path(output_path).resolve().parent).free
+    free = free_bytes(output_path)
     return RunEstimate(tets=model.tet_count, steps=plan.total_steps * prepared.substeps, tet_steps=tet_steps, tet_steps_per_s=speed, seconds=seconds,
                        output_bytes=int(output_bytes), free_bytes=int(free))
 

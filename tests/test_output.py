@@ -376,3 +376,16 @@ def test_cli_exits_non_zero_when_interrupted(tmp_path, monkeypatch):
     with h5py.File(out) as f:
         assert f.attrs["status"] == "interrupted"
         assert f["frames/time"].shape == (3,)
+
+
+def test_frames_written_counts_a_file_of_the_earlier_layout(tmp_path):
+    """A file written before the checksummed headers (``state/`` holding plain datasets, frames
+    appended): ``frames_written`` counts its ``frames/time`` rows."""
+    path = tmp_path / "old.h5"
+    with h5py.File(path, "w") as f:
+        f["frames/time"] = np.arange(4) * 1e-3
+        f["frames/points"] = np.zeros((4, 3000, 3))
+        f["state/positions"] = np.zeros((3000, 3))
+        f["state/velocities"] = np.zeros((3000, 3))
+    with h5py.File(path) as f:
+        assert frames_written(f) == 4

@@ -12,7 +12,8 @@ Features a scene does not use cost nothing: ``ground`` and ``damping_factor`` ar
 and Numba compiles (and caches) a separate specialisation of ``advance`` in which those branches
 are pruned away.  Each step evaluates the corner forces of blocks of tets in vectorised code
 (``kernels.blocked``), then sums them per vertex in a fixed order (deterministic results): scattered
-one colour of blocks at a time, or stored per (tet, corner) and gathered per vertex (small meshes).
+one colour of slab-shaped parts at a time (or, kept for comparison, stored per (tet, corner) and
+gathered per vertex: ``kernels.blocked`` ``scatter='csr'``).
 """
 
 import numpy as np

@@ -99,7 +99,7 @@ class RunWriter:
         self._xdmf_written_at = -np.inf
         self._started = _time.perf_counter()
         self.frame_count = 0
-        self._newest_slot = None
+        self._last_slot = None
         # The file is built under a temporary name and renamed once its mesh and empty frame
         # datasets are on disk, so ``path`` never names a file that a plain reader cannot open.
         partial = self.path.with_name(f".{self.path.name}.partial-{os.getpid()}")
@@ -183,7 +183,7 @@ class RunWriter:
         if newest is None:
             self.file.close()
             raise SimulationError(f"--resume: '{path}' holds no intact resume state")
-        self._newest_slot, state = newest
+        self._last_slot, state = newest
         self.frame_count = int(state["frames"])
         self._started = _time.perf_counter() - float(state["wall_time_s"])
         for dataset in _frame_datasets(f):
@@ -258,7 +258,7 @@ class RunWriter:
         crash_point("after_time", k)
         # The resume state goes to the slot the newest header is not in, so that slot stays intact
         # whatever happens to this one; its header, written after a flush, makes the frame count.
-        slot_name = STATE_SLOTS[1] if self._newest_slot == STATE_SLOTS[0] else STATE_SLOTS[0]
+        slot_name = STATE_SLOTS[1] if self._last_slot == STATE_SLOTS[0] else STATE_SLOTS[0]
         slot = self._slots[slot_name]
         arrays = {name: template[name] for name in self._array_names}
         scalars = np.array([float(template[name]) for name in self._scalar_names], np.float64)
@@ -271,7 +271,7 @@ class RunWriter:
         wall = _time.perf_counter() - self._started
         slot["header"][()] = _header(k + 1, step, time, wall, state_checksum(arrays, scalars, step))
         self.file.flush()
-        self._newest_slot = slot_name
+        self._last_slot = slot_name
         self.frame_count = k + 1
         crash_point("after_flush", k)
 
@@ -450,7 +450,7 @@ def read_resume_state(f):
 def frames_written(f):
     """How many frames of an open run file are complete: rows ``0 .. frames_written(f) - 1`` of
     every ``frames/*`` dataset (a file from a run that ended is trimmed to exactly these)."""
-    if "state" not in f or not any("header" in slot for slot in f["state"].values()):
+    if "state" not in f or not any(isinstance(slot, h5py.Group) and "header" in slot for slot in f["state"].values()):
         return f["frames/time"].shape[0] if "frames/time" in f else 0     # written before the headers
     newest = _newest_slot(f, check_data=False)
     return 0 if newest is None else int(newest[1]["frames"])

@@ -20,9 +20,9 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ..kernels.energy import elastic_energy, gravity_energy, kinetic_energy
 from ..kernels.forces import elastic_forces
 from ..materials.models import MODEL_IDS, ROTATION_INVARIANT, model_lame_parameters
+from ..simulation import frame_energy
 from . import references as ref
 from .driver import Run, face_mask, tet_deformation_gradients, unique_edges
 
@@ -148,8 +148,8 @@ def run_cantilever(p=Cantilever(), quick=False, models=MODELS, mutate=None, prog
     where the error is below a few times the 3D clamp's own difference from beam theory."""
     case = "cantilever"
     L, t = p.length, p.thickness
-    _, w_timoshenko = ref.cantilever_tip_deflection(L, t, t, p.youngs_modulus, p.poissons_ratio, p.density, p.gravity)
-    w_bending, _ = ref.cantilever_tip_deflection(L, t, t, p.youngs_modulus, p.poissons_ratio, p.density, p.gravity)
+    w_bending, w_timoshenko = ref.cantilever_tip_deflection(L, t, t, p.youngs_modulus, p.poissons_ratio, p.density,
+                                                             p.gravity)
     omega = ref.cantilever_frequency(L, t, p.youngs_modulus, p.density)
     divisions = p.quick_divisions if quick else p.divisions
     rows = []
@@ -611,10 +611,9 @@ def run_energy(p=Energy(), quick=False, models=MODELS, mutate=None, progress=Non
             m = run.reference_model
 
             def energies():
-                x, v = run.state.x, run.state.v
-                moving = kinetic_energy(v, m.mass) + elastic_energy(x, m.tets, m.Dm_inv, m.rest_volume,
-                                                                    m.material_id, m.lam, m.mu)
-                return moving, moving + gravity_energy(x, m.mass, m.gravity)
+                e = frame_energy(m, run.state)
+                moving = e["kinetic"] + e["elastic"]
+                return moving, moving + e["gravity"]
 
             chunk = run.steps_for(period / p.samples_per_period)
             times, totals, scale = [0.0], [energies()[1]], 0.0

@@ -18,18 +18,10 @@ from dataclasses import replace
 import numpy as np
 
 from ..config import parse_scene
+from ..integrators.symplectic_euler import work_buffer
 from ..integrators.timestep import AUTO_SAFETY
 from ..model import State, initial_state
 from ..simulation import prepare, stable_dt_estimate, step
-
-
-def _work_buffer(model):
-    """The scratch buffer ``simulation.step`` takes for ``model`` (as ``simulation.simulate`` allocates it)."""
-    try:
-        from ..integrators.symplectic_euler import work_buffer
-    except ImportError:          # the per-tet step: one (tet, corner) force buffer
-        return np.empty((model.tet_count, 4, 3))
-    return work_buffer(model)
 
 
 class Run:
@@ -50,10 +42,11 @@ class Run:
         model = prepared.model if mutate is None else mutate(prepared.model)
         self.model = model
         self.reference_model = prepared.model     # as built: what energies are measured with
-        self.dt = dt_factor * AUTO_SAFETY * stable_dt_estimate(model)
+        bound = prepared.dt_estimate if mutate is None else stable_dt_estimate(model)
+        self.dt = dt_factor * AUTO_SAFETY * bound
         self.damping = self.scene.damping
         self.state = initial_state(self.scene, model)
-        self._corner_forces = _work_buffer(model)
+        self._corner_forces = work_buffer(model)
         self.steps = 0
         self.wall_time_s = 0.0
         self._warm_up()
