@@ -206,9 +206,12 @@ def step_arguments(model, work):
     layout = model.blocks
     n, m = model.node_count, model.tet_count
     flat = work.reshape(-1)
+    needed = 3 * n if layout.scatter == "colour" else 12 * m
+    if flat.size < needed:
+        raise ValueError(f"work buffer of {flat.size} floats, the {layout.scatter} scatter needs {needed}")
     blocks = (layout.tets, layout.rest, layout.tet_count, layout.part_offsets, layout.colour_parts)
     if layout.scatter == "colour":
-        vertex_forces = flat[:3 * n].reshape(n, 3) if flat.size >= 3 * n else np.empty((n, 3))
+        vertex_forces = flat[:3 * n].reshape(n, 3)
         corner_forces = np.empty((0, 4, 3))
         scatter = True
     else:
