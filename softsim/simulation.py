@@ -167,9 +167,10 @@ def frame_fields(model, state, fields):
     return out
 
 
-def step(model, state, dt, step_count, damping, corner_forces):
-    """Advance ``state`` in place by ``step_count`` symplectic-Euler steps of ``dt`` [s]."""
-    blocks, colour_offsets, scatter, offsets, slots, vertex_forces, corner = step_arguments(model, corner_forces)
+def step(model, state, dt, step_count, damping, work):
+    """Advance ``state`` in place by ``step_count`` symplectic-Euler steps of ``dt`` [s]; work: the
+    buffer of ``work_buffer(model)``."""
+    blocks, colour_offsets, scatter, offsets, slots, vertex_forces, corner = step_arguments(model, work)
     available = numba.get_num_threads()
     threads = step_threads(model.tet_count, available)
     numba.set_num_threads(threads)
@@ -186,16 +187,16 @@ def step(model, state, dt, step_count, damping, corner_forces):
     state.step += step_count
 
 
-def advance_substeps(model, state, dt, step_count, substeps, damping, corner_forces):
+def advance_substeps(model, state, dt, step_count, substeps, damping, work):
     """Advance ``state`` by ``step_count`` steps of ``dt`` [s], each split into ``substeps`` equal ones.
 
     Returns the number of steps taken (``step_count * substeps``).
     """
     if substeps == 1:
-        step(model, state, dt, step_count, damping, corner_forces)
+        step(model, state, dt, step_count, damping, work)
         return step_count
     fine = State(x=state.x, v=state.v, step=state.step * substeps, held_start=state.held_start)
-    step(model, fine, dt / substeps, step_count * substeps, damping, corner_forces)
+    step(model, fine, dt / substeps, step_count * substeps, damping, work)
     state.step += step_count
     return step_count * substeps
 
@@ -215,7 +216,7 @@ def simulate(prepared, output_path, progress=None, should_stop=None, resume=Fals
     scene, model, plan = prepared.scene, prepared.model, prepared.plan
     state = initial_state(scene, model)
     fields = scene.output.fields
-    corner_forces = work_buffer(model)
+    work = work_buffer(model)
     guard = FrameGuard(model, prepared.wave_speed, plan.dt, scene.time.dt_policy, state)
 
     def write_frame(writer):
@@ -249,10 +250,10 @@ def simulate(prepared, output_path, progress=None, should_stop=None, resume=Fals
             steps = target - state.step
             while target - state.step > RECHECK_STEPS:
                 steps_taken += advance_substeps(model, state, plan.dt, RECHECK_STEPS, substeps, scene.damping,
-                                                corner_forces)
+                                                work)
                 substeps = guard.recheck_step(state, state.step * plan.dt)
             steps_taken += advance_substeps(model, state, plan.dt, target - state.step, substeps, scene.damping,
-                                            corner_forces)
+                                            work)
             guard.record_held_work(state, steps * plan.dt)
             substeps = guard.check(state, state.step * plan.dt)
             write_frame(writer)
