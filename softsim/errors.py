@@ -29,5 +29,9 @@ class MissingDependencyError(SoftsimError):
     """An optional Python extra or a system library needed for this command is not installed."""
 
 
+# What installs the plotting and rendering extra (quoted: zsh would glob the brackets).
+PLOT_EXTRA = 'pip install "softsim[plot]"'
+
+
 class SimulationError(SoftsimError):
     """A run could not go on (e.g. the output file cannot be written)."""

@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import ConfigError, MissingDependencyError, SoftsimError
+from ..errors import PLOT_EXTRA, ConfigError, MissingDependencyError, SoftsimError
 from ..io.hdf5 import frames_written, read_resume_state
 from .catalogue import MODELS, catalogue
 from .limits import MESH_KINDS, LimitCase, limit_cases, limit_meshes, measure_limit, verdicts
@@ -48,7 +48,6 @@ QUICK_GRID = ((1e5, 2e11), (0.3, 0.499))
 FULL_GRID = ((1e5, 1e7, 2e11), (0.3, 0.45, 0.49, 0.499))
 QUICK_LIMIT_STEPS = 3000
 FULL_LIMIT_STEPS = 5000
-PLOT_EXTRA = "pip install softsim[plot]"
 
 
 @dataclass(frozen=True)

@@ -23,7 +23,7 @@ import time as _time
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..errors import ConfigError, MissingDependencyError
+from ..errors import PLOT_EXTRA, ConfigError, MissingDependencyError
 from . import references as ref
 from .cases import CASES, MODELS, VerifyRow
 
@@ -31,7 +31,6 @@ COLUMNS = ("case", "quantity", "model", "precision", "ladder", "refinement", "el
            "steps", "wall_time_s", "value", "reference_value", "error", "reference", "reference_uncertainty",
            "order", "order_self", "note")
 BUDGETS = (1e-2, 1e-3)
-PLOT_EXTRA = 'pip install "softsim[plot]"'
 MODEL_COLOURS = {"linear": "tab:gray", "stvk": "tab:blue", "corotated": "tab:green", "neohookean": "tab:red"}
 LADDER_STYLES = {"element_size": ("o", "-"), "dt": ("s", "--"), "load": ("^", ":"), "-": ("D", "none")}
 

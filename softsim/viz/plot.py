@@ -6,10 +6,9 @@ display and inside other programs.
 
 import numpy as np
 
-from ..errors import MissingDependencyError
+from ..errors import PLOT_EXTRA, MissingDependencyError
 from .results import ResultsError, open_results
 
-PLOT_EXTRA = 'pip install "softsim[plot]"'
 
 
 def _matplotlib():

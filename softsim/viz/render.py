@@ -13,11 +13,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import MissingDependencyError
+from ..errors import PLOT_EXTRA, MissingDependencyError
 from ..io.fields import FIELDS
 from .results import ResultsError, open_results
 
-PLOT_EXTRA = 'pip install "softsim[plot]"'
 FORMATS = (".png", ".gif", ".mp4")
 # Direction from the focal point to the camera, and the view-up vector.
 VIEWS = {
