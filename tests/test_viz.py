@@ -301,3 +301,23 @@ def test_frame_selection(bar):
         assert results.select_frames("1:") == [1, 2]
         with pytest.raises(ResultsError, match="step must not be 0"):
             results.select_frames("::0")
+
+
+def test_info_of_a_killed_run_shows_the_wall_time_of_its_last_frame(tmp_path):
+    """The root ``wall_time_s`` is written when a run ends; a killed run's comes from its newest
+    resume header."""
+    import time
+
+    from softsim.io.hdf5 import RunWriter
+    from softsim.viz.info import summarize
+
+    rng = np.random.default_rng(1)
+    points, tets = rng.random((8, 3)), np.array([[0, 1, 2, 3], [4, 5, 6, 7]])
+    writer = RunWriter(tmp_path / "killed.h5", points, tets, np.zeros(8, bool), "{}", 1e-3, 10, frames=10)
+    writer.append_frame(0.0, 0, points, points)
+    time.sleep(0.05)
+    writer.append_frame(1e-3, 1, points, points)
+    writer.file.close()                     # no finish: the file is left as a kill leaves it
+    summary = summarize(tmp_path / "killed.h5")
+    assert summary["status"] == "running" and summary["frames"] == 2
+    assert summary["wall_time_s"] >= 0.05

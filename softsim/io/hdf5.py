@@ -456,6 +456,15 @@ def frames_written(f):
     return 0 if newest is None else int(newest[1]["frames"])
 
 
+def wall_time_s(f):
+    """Wall time [s] an open run file took so far: the root attribute once the run has ended, the
+    newest intact resume header while it is running or after it was killed."""
+    if str(f.attrs.get("status", "")) != "running":
+        return float(f.attrs.get("wall_time_s", float("nan")))
+    newest = _newest_slot(f, check_data=False) if "state" in f else None
+    return float(newest[1]["wall_time_s"]) if newest is not None else float(f.attrs.get("wall_time_s", float("nan")))
+
+
 def free_bytes(path):
     """Bytes free for this user on the file system holding ``path`` (statvfs: microseconds)."""
     return shutil.disk_usage(Path(path).resolve().parent).free

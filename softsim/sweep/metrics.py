@@ -12,7 +12,7 @@ import h5py
 import numpy as np
 import yaml
 
-from ..io.hdf5 import frames_written, read_resume_state
+from ..io.hdf5 import frames_written, read_resume_state, wall_time_s
 
 # Tip vertices: those within this fraction of the greatest distance from the held vertices.
 TIP_TOLERANCE = 1e-3
@@ -90,9 +90,7 @@ def run_metrics(path):
             "status_reason": str(attrs.get("status_reason", "")),
             "steps": int(attrs.get("steps", 0)),
             "dt": float(attrs.get("dt", math.nan)),
-            # a killed run's wall time is in its last resume state; the attribute is set at the end
-            "wall_time_s": float(resume_state.get("wall_time_s", math.nan) if attrs.get("status") == "running"
-                                 else attrs.get("wall_time_s", math.nan)),
+            "wall_time_s": wall_time_s(f),
         }
     density = float(config["material"]["density"])
     mass = lumped_masses(points, tets, density)

@@ -3,6 +3,7 @@
 import numpy as np
 
 from ..io.fields import FIELDS
+from ..io.hdf5 import wall_time_s
 from .results import open_results
 
 
@@ -33,7 +34,7 @@ def summarize(path):
             "status_reason": attrs.get("status_reason", ""),
             "steps": attrs.get("steps"),
             "dt": attrs.get("dt"),
-            "wall_time_s": attrs.get("wall_time_s"),
+            "wall_time_s": wall_time_s(results.file),
             "frames": results.frame_count,
             "time": float(results.times[-1]),
             "duration": (scene.get("time", {}) or {}).get("duration"),
