@@ -67,6 +67,7 @@ class Model:
     ground_height: float
     ground_friction: float
     blocks: object = None     # kernels.blocked.BlockLayout: the tets in blocks for the vectorised step
+    precision: str = "float64"    # of the step (its blocks and state); the model's own arrays are float64
 
     @property
     def has_ground(self):
@@ -176,7 +177,8 @@ def build_model(scene, mesh):
         ground_stiffness=float(ground.stiffness) if ground is not None else None,
         ground_height=float(ground.height) if ground is not None else 0.0,
         ground_friction=float(ground.friction) if ground is not None else 0.0,
-        blocks=build_block_layout(tets, Dm_inv, rest_volume, n),
+        blocks=build_block_layout(tets, Dm_inv, rest_volume, n, dtype=np.dtype(scene.precision)),
+        precision=scene.precision,
     )
 
 

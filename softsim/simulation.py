@@ -169,21 +169,34 @@ def frame_fields(model, state, fields):
 
 def step(model, state, dt, step_count, damping, work):
     """Advance ``state`` in place by ``step_count`` symplectic-Euler steps of ``dt`` [s]; work: the
-    buffer of ``work_buffer(model)``."""
-    blocks, colour_offsets, scatter, offsets, slots, vertex_forces, corner = step_arguments(model, work)
+    buffer of ``work_buffer(model)``.  A float32 model steps displacements in float32
+    (``integrators.symplectic_euler.SinglePrecisionWork``); ``state`` stays float64."""
+    damping_factor = math.exp(-damping * dt) if damping > 0.0 else None
+    if model.precision == "float32":
+        work.load(state, model.rest_points)
+        x, rest, v, held_start = work.u, work.rest, work.v, work.held_start
+        inv_mass, external_accel, held_velocity = work.inv_mass, work.external_accel, work.held_velocity
+        dt, lam, mu = np.float32(dt), np.float32(model.lam), np.float32(model.mu)
+        damping_factor = None if damping_factor is None else np.float32(damping_factor)
+        forces = work.forces
+    else:
+        x, rest, v, held_start = state.x, None, state.v, state.held_start
+        inv_mass, external_accel, held_velocity = model.inv_mass, model.external_accel, model.held_velocity
+        lam, mu = model.lam, model.mu
+        forces = work
+    blocks, colour_offsets, scatter, offsets, slots, vertex_forces, corner = step_arguments(model, forces)
     available = numba.get_num_threads()
     threads = step_threads(model.tet_count, available)
     numba.set_num_threads(threads)
     try:
-        advance(state.x, state.v, state.step, step_count, dt,
-                blocks, colour_offsets, scatter, model.material_id, model.lam, model.mu, offsets, slots,
-                vertex_forces, corner,
-                model.inv_mass, model.external_accel,
-                model.held, state.held_start, model.held_velocity,
-                model.ground_arguments(), math.exp(-damping * dt) if damping > 0.0 else None,
-                threads)
+        advance(x, rest, v, state.step, step_count, dt,
+                blocks, colour_offsets, scatter, model.material_id, lam, mu, offsets, slots,
+                vertex_forces, corner, inv_mass, external_accel, model.held, held_start, held_velocity,
+                model.ground_arguments(), damping_factor, threads)
     finally:
         numba.set_num_threads(available)
+    if model.precision == "float32":
+        work.store(state, model.rest_points)
     state.step += step_count
 
 

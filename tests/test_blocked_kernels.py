@@ -24,7 +24,9 @@ NU = 0.3
 
 
 class Body:
-    """Just the ``Model`` attributes ``step_arguments`` reads."""
+    """Just the ``Model`` attributes ``step_arguments`` and ``work_buffer`` read."""
+
+    precision = "float64"
 
     def __init__(self, points, tets, scatter):
         self.X = np.ascontiguousarray(points, dtype=np.float64)
@@ -40,7 +42,7 @@ class Body:
         v = np.zeros_like(x)
         blocks, colour_offsets, scatter, offsets, slots, vf, corner = step_arguments(self, work_buffer(self))
         no_hold = np.zeros((n, 3), dtype=np.bool_)
-        advance(x, v, 0, 1, 1.0, blocks, colour_offsets, scatter, MODEL_IDS[model], lam, mu, offsets, slots,
+        advance(x, None, v, 0, 1, 1.0, blocks, colour_offsets, scatter, MODEL_IDS[model], lam, mu, offsets, slots,
                 vf, corner, np.ones(n), np.zeros((n, 3)), no_hold, x.copy(), np.zeros((n, 3)),
                 None, None, numba.get_num_threads())
         return v

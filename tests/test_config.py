@@ -154,7 +154,7 @@ def test_frozen():
         ("damping=-0.5", "damping = -0.5: must be at least 0"),
         ("gravity=[0, -9.81]", "gravity = [0, -9.81]: must be a list of 3 numbers"),
         ("initial_velocity=3", "initial_velocity = 3: must be a list of 3 numbers"),
-        ("precision=float32", "precision = 'float32': must be one of float64"),
+        ("precision=float16", "precision = 'float16': must be one of float64, float32"),
         ("mesh.shape=blob", "mesh.shape = 'blob': must be one of box, cylinder, sphere, file"),
         ("mesh.size=[1, 0, 1]",
          "mesh.size = [1, 0, 1]: must be a list of 3 numbers [x, y, z], each greater than 0"),

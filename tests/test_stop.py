@@ -107,6 +107,9 @@ def _stop_after(frames):
     ("corotated", {"damping": 5.0, "gravity": [0, 0, -9.81],
                    "fixed": [{"min": [-1, -1, -1e-6], "max": [1, 1, 1e-6]},
                              {"min": [-1, -1, 0.1 - 1e-6], "max": [1, 1, 1], "velocity": [0, 0, -1.0]}]}),
+    # float32: the state crosses to float32 and back at every call; a dropped cube on a ground
+    ("neohookean", {"precision": "float32", "damping": 2.0, "gravity": [0, 0, -9.81],
+                    "initial_velocity": [0, 0, -1.0], "ground": {"height": -0.002}}),
 ])
 def test_resume_continues_bit_for_bit(scene, tmp_path, model, extra):
     """Stopped after 4 frames and resumed, a run writes exactly the frames, bits and all, of the

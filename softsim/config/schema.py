@@ -32,7 +32,9 @@ MODELS = ("linear", "stvk", "corotated", "neohookean")
 AXES = ("x", "y", "z")
 DT_CHOICES = ("auto", "exact")
 DT_POLICIES = ("substep", "refuse", "allow")
-PRECISIONS = ("float64",)
+PRECISIONS = ("float64", "float32")
+# Models with a float32 step: those with a displacement form (materials.models.DISPLACEMENT_FORM_MODELS).
+FLOAT32_MODELS = ("linear", "stvk", "neohookean")
 # The optional per-frame fields (softsim/io/fields.py says where each lives, its shape and unit).
 OUTPUT_FIELDS = ("velocities", "energy", "displacement", "speed", "strain", "stress", "pressure",
                  "deviatoric_stress", "von_mises", "J")
@@ -223,7 +225,7 @@ ModelName = Annotated[
     Literal["linear", "stvk", "corotated", "neohookean"], BeforeValidator(_choice_checker(MODELS))
 ]
 Axis = Annotated[Literal["x", "y", "z"], BeforeValidator(_choice_checker(AXES))]
-Precision = Annotated[Literal["float64"], BeforeValidator(_choice_checker(PRECISIONS))]
+Precision = Annotated[Literal["float64", "float32"], BeforeValidator(_choice_checker(PRECISIONS))]
 AxisList = Annotated[tuple[str, ...], BeforeValidator(_distinct_list_checker(AXES, non_empty=True))]
 FieldList = Annotated[
     tuple[str, ...], BeforeValidator(_distinct_list_checker(OUTPUT_FIELDS, non_empty=False))
@@ -427,7 +429,10 @@ class Scene(Section):
 
     mesh: Mesh = Field(description="geometry and meshing (lengths in m)")
     material: Material = Field(description="material law and constants (SI units)")
-    precision: Precision = Field("float64", description="floating point precision: float64")
+    precision: Precision = Field(
+        "float64", description="floating point precision of the step: float64, or float32 (faster, about "
+        "7 digits; linear, stvk and neohookean)"
+    )
     damping: NonNegative = Field(0.0, description="damping rate [1/s] >= 0")
     gravity: Vector = Field((0.0, 0.0, -9.81), description="gravitational acceleration [m/s^2]")
     fixed: Fixed = Field((), description="fixed / driven regions (list)")
@@ -445,6 +450,14 @@ class Scene(Section):
     ground: Optional[Ground] = Field(None, description="ground plane; omitted/null = no ground")
     time: Time = Field(default_factory=Time, description="time span and step [s]")
     output: Output = Field(default_factory=Output, description="output file and frame rate")
+
+    @model_validator(mode="after")
+    def _check_precision(self) -> "Scene":
+        """float32 only for the models that have a displacement form."""
+        if self.precision == "float32" and self.material.model not in FLOAT32_MODELS:
+            fail(f"material.model {self.material.model} steps in float64 only; float32 is available for "
+                 f"{', '.join(FLOAT32_MODELS)}", key="precision", value=self.precision)
+        return self
 
 
 SECTION_NAMES = tuple(Scene.model_fields)

@@ -8,6 +8,11 @@ One step, for every vertex ``i`` (Sifakis & Barbic 2012, section 6):
     x_i += dt * v_i
     held components: v = prescribed velocity, x = start + velocity * t
 
+Precision: in float64, ``x`` holds positions; in float32 it holds displacements ``u = x - X`` from
+the rest positions ``rest`` (float32 keeps 7 digits: a steel step moves a vertex ~1e-8 m, below
+float32's spacing at 1 m, and would be lost in ``x += dt v``, not in ``u += dt v``), and the
+force kernel takes the laws in displacement form.  ``rest`` is None in float64.
+
 Features a scene does not use cost nothing: ``ground`` and ``damping_factor`` are ``None`` then,
 and Numba compiles (and caches) a separate specialisation of ``advance`` in which those branches
 are pruned away.  Each step evaluates the corner forces of blocks of tets in vectorised code
@@ -37,7 +42,16 @@ def step_threads(tet_count, available):
 
 
 @njit
-def downward_area(x, faces, face_offsets, face_slots, i):
+def position(x, rest, i, k):
+    """Component ``k`` of vertex ``i``'s position [m]: ``x[i, k]``, or ``rest[i, k] + x[i, k]`` when
+    ``x`` holds displacements from ``rest``."""
+    if rest is None:
+        return x[i, k]
+    return rest[i, k] + x[i, k]
+
+
+@njit
+def downward_area(x, rest, faces, face_offsets, face_slots, i):
     """Area [m^2] of vertex ``i``'s share of its boundary faces, projected on the ground and facing it.
 
     A third of each adjacent face's current area vector ``1/2 (x1 - x0) x (x2 - x0)`` (outward);
@@ -50,16 +64,16 @@ def downward_area(x, faces, face_offsets, face_slots, i):
         a = faces[f, 0]
         b = faces[f, 1]
         c = faces[f, 2]
-        ux = x[b, 0] - x[a, 0]
-        uy = x[b, 1] - x[a, 1]
-        wx = x[c, 0] - x[a, 0]
-        wy = x[c, 1] - x[a, 1]
+        ux = position(x, rest, b, 0) - position(x, rest, a, 0)
+        uy = position(x, rest, b, 1) - position(x, rest, a, 1)
+        wx = position(x, rest, c, 0) - position(x, rest, a, 0)
+        wy = position(x, rest, c, 1) - position(x, rest, a, 1)
         area_z += (ux * wy - uy * wx) / 6.0
     return max(0.0, -area_z)
 
 
 @njit
-def ground_contact(x, v, i, dt, inv_mass, ground):
+def ground_contact(x, rest, v, i, dt, inv_mass, ground):
     """Apply the ground's penalty force and friction to ``v[i]`` in place.
 
     ground: ``(height [m], stiffness [Pa/m], friction, faces (b, 3), face_offsets, face_slots)``.
@@ -68,10 +82,10 @@ def ground_contact(x, v, i, dt, inv_mass, ground):
     tangential speed (it can stop a sliding vertex, never reverse it).
     """
     height, stiffness, friction, faces, face_offsets, face_slots = ground
-    depth = height - x[i, 2]
+    depth = height - position(x, rest, i, 2)
     if depth <= 0.0:
         return
-    area = downward_area(x, faces, face_offsets, face_slots, i)
+    area = downward_area(x, rest, faces, face_offsets, face_slots, i)
     dv_normal = dt * stiffness * depth * area * inv_mass[i]
     v[i, 2] += dv_normal
     if friction > 0.0:
@@ -98,7 +112,7 @@ def move_vertex(x, v, i, dt, t_next, held, held_start, held_velocity):
 
 
 @njit
-def update_vertex(x, v, i, fx, fy, fz, dt, t_next, inv_mass, external_accel, held, held_start, held_velocity,
+def update_vertex(x, rest, v, i, fx, fy, fz, dt, t_next, inv_mass, external_accel, held, held_start, held_velocity,
                   ground, damping_factor):
     """One step of vertex ``i`` from its elastic force ``(fx, fy, fz)`` [N] (see the module docstring).
 
@@ -110,8 +124,8 @@ def update_vertex(x, v, i, fx, fy, fz, dt, t_next, inv_mass, external_accel, hel
     v[i, 1] += dt * (fy * w + external_accel[i, 1])
     v[i, 2] += dt * (fz * w + external_accel[i, 2])
     if ground is not None:
-        if x[i, 2] < ground[0]:       # below the ground's height: only then unpack the tuple of arrays
-            ground_contact(x, v, i, dt, inv_mass, ground)
+        if position(x, rest, i, 2) < ground[0]:   # below the ground: only then unpack the tuple of arrays
+            ground_contact(x, rest, v, i, dt, inv_mass, ground)
     if damping_factor is not None:
         v[i, 0] *= damping_factor
         v[i, 1] *= damping_factor
@@ -121,16 +135,16 @@ def update_vertex(x, v, i, fx, fy, fz, dt, t_next, inv_mass, external_accel, hel
 
 
 @njit
-def block_range_forces(x, blocks, first, stop, model, lam, mu, scatter, vertex_forces, corner_forces):
-    """Forces of blocks ``first`` to ``stop - 1``, in order.
+def block_range_forces(x, rest, blocks, first, stop, model, lam, mu, scatter, vertex_forces, corner_forces):
+    """Forces of blocks ``first`` to ``stop - 1``, in order (in the precision of ``blocks``' rest data).
 
     scatter: add them to ``vertex_forces`` (node_count, 3) (no other thread may be writing the
     vertices of these blocks); else store them per (tet, corner) into ``corner_forces`` (tet_count, 4, 3).
     """
     block_tets, block_rest, tet_count, _, _ = blocks
-    buf = np.empty(ROWS * BLOCK)
+    buf = np.empty(ROWS * BLOCK, dtype=block_rest.dtype)
     for b in range(first, stop):
-        block_forces(x, block_tets, block_rest, b, model, lam, mu, buf)
+        block_forces(x, block_tets, block_rest, b, model, lam, mu, buf, rest)
         lane_count = min(BLOCK, tet_count - b * BLOCK)
         if scatter:
             scatter_block(block_tets, b, lane_count, buf, vertex_forces)
@@ -139,12 +153,14 @@ def block_range_forces(x, blocks, first, stop, model, lam, mu, scatter, vertex_f
 
 
 @njit_parallel
-def advance(x, v, step_start, step_count, dt,
+def advance(x, rest, v, step_start, step_count, dt,
             blocks, colour_offsets, scatter, model, lam, mu, offsets, slots, vertex_forces, corner_forces,
             inv_mass, external_accel, held, held_start, held_velocity,
             ground, damping_factor, threads):
     """Advance positions ``x`` and velocities ``v`` (node_count, 3) [m, m/s] in place by ``step_count`` steps.
 
+    rest: None; or, in float32, the rest positions (n, 3) [m], ``x`` then holding displacements
+    from them (and ``held_start`` too).  Every array and scalar is in the precision of ``x``.
     step_start: index of the first step (time ``step_start * dt`` [s]); dt [s].
     blocks: ``(block_tets, block_rest, tet_count, part_offsets, colour_parts)`` of a
     ``kernels.blocked.BlockLayout``; colour_offsets: (colours + 1,) into colour_parts; model id, Lame
@@ -175,12 +191,12 @@ def advance(x, v, step_start, step_count, dt,
             for colour in range(colour_offsets.shape[0] - 1):
                 for k in prange(colour_offsets[colour], colour_offsets[colour + 1]):
                     part = colour_parts[k]
-                    block_range_forces(x, blocks, part_offsets[part], part_offsets[part + 1],
+                    block_range_forces(x, rest, blocks, part_offsets[part], part_offsets[part + 1],
                                        model, lam, mu, scatter, vertex_forces, corner_forces)
         else:
             chunks = min(threads, block_count)
             for chunk in prange(chunks):
-                block_range_forces(x, blocks, chunk * block_count // chunks, (chunk + 1) * block_count // chunks,
+                block_range_forces(x, rest, blocks, chunk * block_count // chunks, (chunk + 1) * block_count // chunks,
                                    model, lam, mu, scatter, vertex_forces, corner_forces)
         for i in prange(node_count):
             if scatter:
@@ -192,7 +208,7 @@ def advance(x, v, step_start, step_count, dt,
                 vertex_forces[i, 2] = 0.0
             else:
                 fx, fy, fz = gather_vertex_force(corner_forces, offsets, slots, i)
-            update_vertex(x, v, i, fx, fy, fz, dt, t_next, inv_mass, external_accel, held, held_start,
+            update_vertex(x, rest, v, i, fx, fy, fz, dt, t_next, inv_mass, external_accel, held, held_start,
                           held_velocity, ground, damping_factor)
         if ground is not None:
             for i in prange(node_count):
@@ -201,7 +217,8 @@ def advance(x, v, step_start, step_count, dt,
 
 def step_arguments(model, work):
     """The ``blocks, colour_offsets, scatter, offsets, slots, vertex_forces, corner_forces``
-    arguments of ``advance`` for ``model``; work: a float64 buffer from ``work_buffer`` (or larger).
+    arguments of ``advance`` for ``model``; work: a buffer from ``work_buffer`` (or larger), in the
+    precision of the step (``SinglePrecisionWork.forces`` in float32).
     """
     layout = model.blocks
     n, m = model.node_count, model.tet_count
@@ -212,18 +229,59 @@ def step_arguments(model, work):
     blocks = (layout.tets, layout.rest, layout.tet_count, layout.part_offsets, layout.colour_parts)
     if layout.scatter == "colour":
         vertex_forces = flat[:3 * n].reshape(n, 3)
-        corner_forces = np.empty((0, 4, 3))
+        corner_forces = np.empty((0, 4, 3), dtype=flat.dtype)
         scatter = True
     else:
-        vertex_forces = np.empty((0, 3))
+        vertex_forces = np.empty((0, 3), dtype=flat.dtype)
         corner_forces = flat[:12 * m].reshape(m, 4, 3)
         scatter = False
     return (blocks, layout.colour_offsets, scatter, model.csr_offsets, model.csr_slots,
             vertex_forces, corner_forces)
 
 
-def work_buffer(model):
-    """The work buffer ``advance`` needs for ``model``: vertex forces or per-(tet, corner) forces."""
+def force_buffer(model, dtype=np.float64):
+    """Vertex forces (n, 3) for the colour scatter, or per-(tet, corner) forces (m, 4, 3) for csr."""
     if model.blocks.scatter == "colour":
-        return np.zeros((model.node_count, 3))
-    return np.empty((model.tet_count, 4, 3))
+        return np.zeros((model.node_count, 3), dtype=dtype)
+    return np.empty((model.tet_count, 4, 3), dtype=dtype)
+
+
+class SinglePrecisionWork:
+    """The buffers of the float32 step (``work_buffer`` of a model with ``precision: float32``).
+
+    ``load`` turns the float64 state into displacements ``u = x - X`` and velocities in float32
+    before a call of ``advance``; ``store`` turns them back (``x = X + u`` in float64) after it.
+    float64 holds 29 more bits, so the round trip returns the same float32 values (only
+    displacements below about 1e-9 of the coordinates may move by one float32 unit): splitting a
+    run into more calls changes next to nothing, and the same calls give the same bits.
+    rest, inv_mass, external_accel, held_velocity: the model's arrays in float32; forces: the
+    scatter's buffer (``force_buffer``).
+    """
+
+    def __init__(self, model):
+        n = model.node_count
+        self.u = np.zeros((n, 3), dtype=np.float32)
+        self.v = np.zeros((n, 3), dtype=np.float32)
+        self.held_start = np.zeros((n, 3), dtype=np.float32)
+        self.forces = force_buffer(model, np.float32)
+        self.rest = model.rest_points.astype(np.float32)
+        self.inv_mass = model.inv_mass.astype(np.float32)
+        self.external_accel = model.external_accel.astype(np.float32)
+        self.held_velocity = model.held_velocity.astype(np.float32)
+
+    def load(self, state, rest_points):
+        np.subtract(state.x, rest_points, out=self.u, casting="same_kind")
+        np.subtract(state.held_start, rest_points, out=self.held_start, casting="same_kind")
+        self.v[...] = state.v
+
+    def store(self, state, rest_points):
+        np.add(rest_points, self.u, out=state.x)
+        state.v[...] = self.v
+
+
+def work_buffer(model):
+    """The work buffer ``advance`` needs for ``model``: float64 vertex forces or per-(tet, corner)
+    forces, or for a float32 model a ``SinglePrecisionWork``."""
+    if model.precision == "float32":
+        return SinglePrecisionWork(model)
+    return force_buffer(model)

@@ -7,6 +7,7 @@ block is one row of ``BLOCK`` lanes in a single flat scratch buffer (structure o
     rows  0..8   Dm^-1 (row-major)          [1/m]     copied from ``block_rest[b, 0:9]``
     row   9      rest volume V0             [m^3]     copied from ``block_rest[b, 9]``
     rows 10..21  corner positions x_c,k     [m]       gathered from ``x``: row 10 + 3 c + k
+                 (or corner displacements u_c,k = x - X, in the displacement form below)
     rows 22..33  corner forces f_c,k        [N]       row 22 + 3 c + k
     row  34      corotated only: the lanes to redo with the Jacobi SVD (see ``corotated_block``)
 
@@ -18,6 +19,11 @@ of ``materials.models``, inlined; one lane loop per model keeps the law a compil
 Forces (Sifakis & Barbic 2012, section 4.3): ``H = -V0 P(F) Dm^-T``; its columns are the forces on
 corners 1, 2, 3 and ``f0 = -(h1 + h2 + h3)``, exactly as ``forces.tet_corner_forces`` computes them.
 
+Precision: the buffer has the dtype of ``x`` and ``block_rest``.  In float64 the corner rows hold
+positions and the laws take ``F``; in float32 they hold displacements ``u = x - X`` and the laws take
+``H = Du Dm^-1 = F - I`` (``materials.models``, displacement form), so that small strains survive
+float32's 7 digits.
+
 Blocks are padded to a whole block: a padding lane repeats the block's first tet with ``V0 = 0``,
 so it computes finite zero forces and the scatter skips it.
 """
@@ -28,12 +34,16 @@ import numpy as np
 
 from ..materials.models import (
     COROTATED,
+    LINEAR,
     NEOHOOKEAN,
     STVK,
     corotated_stress,
     linear_first_piola,
+    linear_first_piola_displacement,
     neohookean_first_piola,
+    neohookean_first_piola_displacement,
     stvk_first_piola,
+    stvk_first_piola_displacement,
 )
 from ..mesh.reorder import SLABS
 from .jit import njit, njit_inline
@@ -93,10 +103,11 @@ class BlockLayout:
         return self.colour_offsets.shape[0] - 1
 
 
-def build_block_layout(tets, Dm_inv, rest_volume, node_count, scatter=None, slabs=SLABS):
+def build_block_layout(tets, Dm_inv, rest_volume, node_count, scatter=None, slabs=SLABS, dtype=np.float64):
     """The ``BlockLayout`` of a mesh numbered by ``mesh.reorder.renumber_for_locality`` with as many
-    ``slabs``; ``scatter``: ``"colour"`` (None: the default) or ``"csr"``."""
-    block_tets, block_rest = block_layout(tets, Dm_inv, rest_volume)
+    ``slabs``; ``scatter``: ``"colour"`` (None: the default) or ``"csr"``; ``dtype`` of the rest data:
+    the precision of the step (float64 or float32)."""
+    block_tets, block_rest = block_layout(tets, Dm_inv, rest_volume, dtype)
     part_offsets = slab_parts(block_tets, node_count, slabs)
     colour_offsets, colour_parts = part_colouring(block_tets, tets.shape[0], node_count, part_offsets)
     if scatter is None:
@@ -117,11 +128,11 @@ def slab_parts(block_tets, node_count, slabs=SLABS):
     return np.unique(np.append(starts, block_tets.shape[0])).astype(np.int64)
 
 
-def block_layout(tets, Dm_inv, rest_volume):
+def block_layout(tets, Dm_inv, rest_volume, dtype=np.float64):
     """``(block_tets, block_rest)``: the tets in blocks of ``BLOCK``, structure of arrays.
 
     block_tets: (block_count, 4, BLOCK) uint32 corner vertex indices; block_rest: (block_count, 10,
-    BLOCK) float64, rows ``Dm^-1`` (9, row-major) [1/m] and ``V0`` [m^3].  Tet ``e`` is lane
+    BLOCK) ``dtype`` (rounded from float64), rows ``Dm^-1`` (9, row-major) [1/m] and ``V0`` [m^3].  Tet ``e`` is lane
     ``e % BLOCK`` of block ``e // BLOCK``; padding lanes repeat the block's first tet with V0 = 0.
     """
     m = tets.shape[0]
@@ -133,7 +144,7 @@ def block_layout(tets, Dm_inv, rest_volume):
     rest = np.empty((padded, 10))
     rest[:, :9] = Dm_inv.reshape(m, 9)[lane_tet]
     rest[:, 9] = np.where(np.arange(padded) < m, rest_volume[lane_tet], 0.0)
-    block_rest = np.ascontiguousarray(rest.reshape(block_count, BLOCK, 10).transpose(0, 2, 1))
+    block_rest = np.ascontiguousarray(rest.reshape(block_count, BLOCK, 10).transpose(0, 2, 1), dtype=dtype)
     return block_tets.astype(np.uint32), block_rest
 
 
@@ -194,6 +205,9 @@ _stvk_first_piola = njit_inline(stvk_first_piola.py_func)
 _neohookean_first_piola = njit_inline(neohookean_first_piola.py_func)
 _linear_first_piola = njit_inline(linear_first_piola.py_func)
 _corotated_stress = njit_inline(corotated_stress.py_func)
+_linear_first_piola_displacement = njit_inline(linear_first_piola_displacement.py_func)
+_stvk_first_piola_displacement = njit_inline(stvk_first_piola_displacement.py_func)
+_neohookean_first_piola_displacement = njit_inline(neohookean_first_piola_displacement.py_func)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -216,7 +230,8 @@ def load_block(x, block_tets, block_rest, b, buf):
 
 @njit_inline
 def lane_deformation_gradient(buf, j):
-    """``F = Ds Dm^-1`` of lane ``j`` (9-tuple), ``Ds`` the edges ``x_c - x_0`` as columns."""
+    """``F = Ds Dm^-1`` of lane ``j`` (9-tuple), ``Ds`` the edges ``x_c - x_0`` as columns; when the
+    corner rows hold displacements, the same product is ``H = Du Dm^-1 = F - I``."""
     d = (buf[(ROW_X + 3) * BLOCK + j] - buf[ROW_X * BLOCK + j],
          buf[(ROW_X + 6) * BLOCK + j] - buf[ROW_X * BLOCK + j],
          buf[(ROW_X + 9) * BLOCK + j] - buf[ROW_X * BLOCK + j],
@@ -309,17 +324,49 @@ def linear_block(buf, lam, mu):
 
 
 @njit
-def block_forces(x, block_tets, block_rest, b, model, lam, mu, buf):
-    """Corner forces [N] of block ``b`` into rows ``ROW_F..`` of ``buf`` (``ROWS * BLOCK``,)."""
+def stvk_displacement_block(buf, lam, mu):
+    for j in range(BLOCK):
+        lane_store_forces(buf, j, _stvk_first_piola_displacement(lane_deformation_gradient(buf, j), lam, mu))
+
+
+@njit
+def neohookean_displacement_block(buf, lam, mu):
+    for j in range(BLOCK):
+        lane_store_forces(buf, j, _neohookean_first_piola_displacement(lane_deformation_gradient(buf, j), lam, mu))
+
+
+@njit
+def linear_displacement_block(buf, lam, mu):
+    for j in range(BLOCK):
+        lane_store_forces(buf, j, _linear_first_piola_displacement(lane_deformation_gradient(buf, j), lam, mu))
+
+
+@njit
+def block_forces(x, block_tets, block_rest, b, model, lam, mu, buf, rest):
+    """Corner forces [N] of block ``b`` into rows ``ROW_F..`` of ``buf`` (``ROWS * BLOCK``,).
+
+    rest: None when ``x`` holds positions; the rest positions when ``x`` holds displacements from
+    them (the laws then take ``H = F - I``; ``materials.models.DISPLACEMENT_FORM_MODELS`` only).
+    """
     load_block(x, block_tets, block_rest, b, buf)
-    if model == STVK:
-        stvk_block(buf, lam, mu)
-    elif model == NEOHOOKEAN:
-        neohookean_block(buf, lam, mu)
-    elif model == COROTATED:
-        corotated_block(buf, lam, mu)
+    if rest is None:
+        if model == STVK:
+            stvk_block(buf, lam, mu)
+        elif model == NEOHOOKEAN:
+            neohookean_block(buf, lam, mu)
+        elif model == COROTATED:
+            corotated_block(buf, lam, mu)
+        else:
+            linear_block(buf, lam, mu)
     else:
-        linear_block(buf, lam, mu)
+        if model == STVK:
+            stvk_displacement_block(buf, lam, mu)
+        elif model == NEOHOOKEAN:
+            neohookean_displacement_block(buf, lam, mu)
+        elif model == LINEAR:
+            linear_displacement_block(buf, lam, mu)
+        else:
+            raise ValueError("this material model has no displacement form")
 
 
 @njit

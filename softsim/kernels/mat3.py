@@ -79,6 +79,26 @@ def mat3_add_scaled(a, b, s):
 
 
 @njit
+def mat3_add(a, b):
+    """``a + b``."""
+    return (a[0] + b[0], a[1] + b[1], a[2] + b[2], a[3] + b[3], a[4] + b[4], a[5] + b[5],
+            a[6] + b[6], a[7] + b[7], a[8] + b[8])
+
+
+@njit
+def mat3_sub(a, b):
+    """``a - b``."""
+    return (a[0] - b[0], a[1] - b[1], a[2] - b[2], a[3] - b[3], a[4] - b[4], a[5] - b[5],
+            a[6] - b[6], a[7] - b[7], a[8] - b[8])
+
+
+@njit
+def mat3_add_diagonal(a, s):
+    """``a + s * I``: no literal constant, so a float32 ``a`` and ``s`` give float32 results."""
+    return (a[0] + s, a[1], a[2], a[3], a[4] + s, a[5], a[6], a[7], a[8] + s)
+
+
+@njit
 def mat3_scale(a, s):
     return (s * a[0], s * a[1], s * a[2], s * a[3], s * a[4], s * a[5],
             s * a[6], s * a[7], s * a[8])

@@ -20,9 +20,13 @@ strain all four reduce to isotropic Hooke's law with the scene's E and nu.
 
 import math
 
+import numpy as np
+
 from ..kernels.deformation import green_strain, small_strain
 from ..kernels.jit import njit
 from ..kernels.mat3 import (
+    mat3_add,
+    mat3_add_diagonal,
     mat3_add_scaled,
     mat3_cofactor,
     mat3_ddot,
@@ -30,7 +34,10 @@ from ..kernels.mat3 import (
     mat3_identity,
     mat3_mul,
     mat3_scale,
+    mat3_sub,
     mat3_trace,
+    mat3_transpose,
+    mat3_transpose_mul,
 )
 from ..kernels.polar3 import polar_rotation
 from .lame import lame_parameters, stable_neohookean_parameters
@@ -144,6 +151,62 @@ def neohookean_energy_density(F, lam, mu):
     alpha = 1.0 + 0.75 * mu / lam
     rest = 0.5 * lam * (1.0 - alpha) ** 2 - 0.5 * mu * math.log(4.0)   # Psi(I): shifted to zero
     return 0.5 * mu * (Ic - 3.0) + 0.5 * lam * (J - alpha) ** 2 - 0.5 * mu * math.log(Ic + 1.0) - rest
+
+
+# ---------------------------------------------------------------------------------------------
+# displacement form: the same stresses as functions of H = F - I (the float32 step)
+#
+# In float32, ``F`` near ``I`` keeps about 7 digits: a steel strain of 1e-6 would be lost in the
+# rounding of F's diagonal, and a stress that is a difference of O(1) terms (``F S``, Neo-Hookean's
+# ``mu F`` against ``lam alpha cof F``) would cancel to noise.  These forms take the displacement
+# gradient ``H = Du Dm^-1`` (``u = x - X``, small where the strain is small) and are written so that
+# every term that must vanish at rest is a product of entries of ``H``.  Their constants are float32
+# (``np.float32``): a float64 literal would promote a float32 lane loop to float64; in a float64
+# call they promote exactly.  Corotated has no such form here: its ``F - R`` cancels.
+
+_ONE = np.float32(1.0)
+_TWO = np.float32(2.0)
+_FOUR = np.float32(4.0)
+_HALF = np.float32(0.5)
+_THREE_QUARTERS = np.float32(0.75)
+
+DISPLACEMENT_FORM_MODELS = ("linear", "stvk", "neohookean")
+
+
+@njit
+def linear_first_piola_displacement(H, lam, mu):
+    """``lam tr(H) I + mu (H + H^T)`` [Pa]: ``linear_first_piola`` at ``F = I + H``."""
+    return mat3_add_diagonal(mat3_scale(mat3_add(H, mat3_transpose(H)), mu), lam * mat3_trace(H))
+
+
+@njit
+def stvk_first_piola_displacement(H, lam, mu):
+    """``P = S + H S`` with ``G = H + H^T + H^T H`` (= 2E), ``S = lam/2 tr(G) I + mu G`` [Pa]:
+    ``stvk_first_piola`` at ``F = I + H``."""
+    G = mat3_add(mat3_add(H, mat3_transpose(H)), mat3_transpose_mul(H, H))
+    S = mat3_add_diagonal(mat3_scale(G, mu), _HALF * lam * mat3_trace(G))
+    return mat3_add(S, mat3_mul(H, S))
+
+
+@njit
+def neohookean_first_piola_displacement(H, lam, mu):
+    """``neohookean_first_piola`` at ``F = I + H`` [Pa], rearranged so that nothing cancels at rest:
+
+    ``P = mu [3/4 (F - cof F) + (Ic - 3) / (4 (Ic + 1)) F] + lam (J - 1) cof F`` (from
+    ``Ic / (Ic + 1) = 3/4 + (Ic - 3) / (4 (Ic + 1))`` and ``alpha = 1 + 3 mu / (4 lam)``), with
+    ``cof F = (1 + tr H) I - H^T + cof H``, ``F - cof F = H + H^T - tr(H) I - cof H``,
+    ``Ic - 3 = 2 tr H + H:H`` and ``J - 1 = tr H + tr(cof H) + det H``.
+    """
+    tr = mat3_trace(H)
+    Ht = mat3_transpose(H)
+    cof_H = mat3_cofactor(H)
+    J_minus_1 = tr + mat3_trace(cof_H) + mat3_det(H)
+    Ic_minus_3 = _TWO * tr + mat3_ddot(H, H)
+    cof_F = mat3_add_diagonal(mat3_sub(cof_H, Ht), _ONE + tr)
+    F_minus_cof_F = mat3_add_diagonal(mat3_sub(mat3_add(H, Ht), cof_H), -tr)
+    stretch = Ic_minus_3 / (_FOUR * (_FOUR + Ic_minus_3))
+    shear = mat3_add(mat3_scale(F_minus_cof_F, _THREE_QUARTERS), mat3_scale(mat3_add_diagonal(H, _ONE), stretch))
+    return mat3_add(mat3_scale(shear, mu), mat3_scale(cof_F, lam * J_minus_1))
 
 
 # ---------------------------------------------------------------------------------------------

@@ -120,7 +120,7 @@ def with_rest_state(model, Dm_inv=None, rest_volume=None):
         from ..kernels.blocked import build_block_layout
 
         changes["blocks"] = build_block_layout(model.tets, Dm_inv, rest_volume, model.node_count,
-                                               scatter=model.blocks.scatter)
+                                               scatter=model.blocks.scatter, dtype=model.blocks.rest.dtype)
     return replace(model, **changes)
 
 

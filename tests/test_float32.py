@@ -1,0 +1,173 @@
+"""The float32 step (``precision: float32``): the laws in displacement form, the float32 force
+kernel and whole float32 runs, each against float64 (``tests/naive.py`` or softsim's float64 run).
+
+float32 keeps about 7 digits.  A steel strain of 1e-6 survives it only because the step stores
+displacements ``u = x - X`` and the laws take ``H = F - I``; the tests below also show that the
+plain ``F`` form would lose it.
+"""
+
+import numpy as np
+import pytest
+
+import naive
+from softsim.config import parse_scene
+from softsim.config.schema import FLOAT32_MODELS
+from softsim.errors import ConfigError
+from softsim.integrators.symplectic_euler import SinglePrecisionWork, advance, step_arguments
+from softsim.materials import models
+from softsim.materials.models import DISPLACEMENT_FORM_MODELS, MODEL_IDS, model_lame_parameters
+from softsim.model import initial_state
+from softsim.simulation import prepare, step
+from test_blocked_kernels import Body, mesh
+
+E_PA = 1.0e6
+NU = 0.3
+STEEL = {"model": "stvk", "youngs_modulus": 2.0e11, "poissons_ratio": 0.3, "density": 7850.0}
+
+DISPLACEMENT_LAWS = {name: getattr(models, f"{name}_first_piola_displacement") for name in DISPLACEMENT_FORM_MODELS}
+DEFORMATION_LAWS = {name: getattr(models, f"{name}_first_piola") for name in DISPLACEMENT_FORM_MODELS}
+
+
+def random_gradient(scale, seed):
+    return np.random.default_rng(seed).normal(size=(3, 3)) * scale
+
+
+def test_the_schema_offers_float32_for_the_models_with_a_displacement_form():
+    assert set(FLOAT32_MODELS) == set(DISPLACEMENT_FORM_MODELS)
+
+
+@pytest.mark.parametrize("scale", [0.4, 1e-3])
+@pytest.mark.parametrize("model", DISPLACEMENT_FORM_MODELS)
+def test_displacement_form_is_the_law_at_f_equal_i_plus_h(model, scale):
+    """``P(H)`` equals the independent NumPy law at ``F = I + H`` (float64), large and small strain."""
+    lam, mu = model_lame_parameters(model, E_PA, NU)
+    for seed in range(5):
+        H = random_gradient(scale, seed)
+        expected = naive.pk1(model, np.eye(3) + H, lam, mu)
+        got = np.array(DISPLACEMENT_LAWS[model](tuple(H.ravel()), lam, mu)).reshape(3, 3)
+        np.testing.assert_allclose(got, expected, rtol=0, atol=1e-11 * np.abs(expected).max())
+
+
+@pytest.mark.parametrize("model", DISPLACEMENT_FORM_MODELS)
+def test_float32_displacement_form_keeps_a_steel_strain_the_f_form_loses(model):
+    """At strain 1e-6, float32 ``P(H)`` is good to 1e-5 relative; float32 ``P(F)`` is off by percents
+    (F's diagonal rounds to 6e-8 of 1, 6 % of the strain)."""
+    lam, mu = model_lame_parameters(model, 2.0e11, NU)
+    worst_h, worst_f = 0.0, 0.0
+    for seed in range(5):
+        H = random_gradient(1e-6, seed)
+        expected = naive.pk1(model, np.eye(3) + H, lam, mu)
+        scale = np.abs(expected).max()
+        h32 = tuple(np.float32(h) for h in H.ravel())
+        f32 = tuple(np.float32(f) for f in (np.eye(3) + H).ravel())
+        lam32, mu32 = np.float32(lam), np.float32(mu)
+        P_h = np.array(DISPLACEMENT_LAWS[model](h32, lam32, mu32), dtype=np.float64).reshape(3, 3)
+        P_f = np.array(DEFORMATION_LAWS[model](f32, lam32, mu32), dtype=np.float64).reshape(3, 3)
+        worst_h = max(worst_h, np.abs(P_h - expected).max() / scale)
+        worst_f = max(worst_f, np.abs(P_f - expected).max() / scale)
+    assert worst_h < 1e-5
+    assert worst_f > 1e-2
+
+
+def test_float32_laws_compute_in_float32():
+    """No float64 constant promotes the float32 lane loop (it would halve the SIMD width)."""
+    h32 = tuple(np.float32(0.01 * k) for k in range(9))
+    for law in DISPLACEMENT_LAWS.values():
+        law(h32, np.float32(1.0), np.float32(2.0))
+        assert str(law.nopython_signatures[-1].return_type) == "UniTuple(float32 x 9)"
+
+
+def float32_forces(body, u, model, lam, mu):
+    """Elastic forces [N] (float32) of displacements ``u`` from one step of ``advance`` with ``dt = 1``,
+    unit inverse masses and ``v = 0`` (see ``test_blocked_kernels``)."""
+    n = body.node_count
+    u = np.array(u, dtype=np.float32)
+    v = np.zeros_like(u)
+    blocks, colour_offsets, scatter, offsets, slots, vf, corner = step_arguments(body, body.work.forces)
+    advance(u, body.X.astype(np.float32), v, 0, 1, np.float32(1.0), blocks, colour_offsets, scatter,
+            MODEL_IDS[model], np.float32(lam), np.float32(mu), offsets, slots, vf, corner,
+            np.ones(n, np.float32), np.zeros((n, 3), np.float32), np.zeros((n, 3), np.bool_), u.copy(),
+            np.zeros((n, 3), np.float32), None, None, 1)
+    return v.astype(np.float64)
+
+
+class SingleBody(Body):
+    precision = "float32"
+
+    def __init__(self, points, tets, scatter):
+        super().__init__(points, tets, scatter)
+        from softsim.kernels.blocked import build_block_layout
+
+        self.blocks = build_block_layout(self.tets, self.Dm_inv, self.V0, self.node_count, scatter,
+                                         dtype=np.float32)
+        self.rest_points, self.inv_mass = self.X, np.ones(self.node_count)
+        self.external_accel = self.held_velocity = np.zeros((self.node_count, 3))
+        self.work = SinglePrecisionWork(self)
+
+
+@pytest.mark.parametrize("strain", [0.2, 1e-6])
+@pytest.mark.parametrize("scatter", ["colour", "csr"])
+@pytest.mark.parametrize("model", DISPLACEMENT_FORM_MODELS)
+def test_float32_kernel_forces_match_naive_float64(model, scatter, strain):
+    """Randomly deformed (strain 0.2) or barely so (1e-6, a steel load): float32 forces within
+    1e-5 of the largest float64 force."""
+    points, tets, x = mesh((7, 5, 3))
+    x = points + strain / 0.2 * (x - points)
+    body = SingleBody(points, tets, scatter)
+    assert body.blocks.rest.dtype == np.float32
+    lam, mu = model_lame_parameters(model, E_PA, NU)
+    expected = naive.elastic_forces(x, body.X, body.tets, model, lam, mu)
+    got = float32_forces(body, x - points, model, lam, mu)
+    assert np.abs(got - expected).max() < 1e-5 * np.abs(expected).max()
+
+
+def run_pair(scene_data, steps):
+    """Positions [m] after ``steps`` steps in float64 and in float32, and the rest positions."""
+    out = []
+    for precision in ("float64", "float32"):
+        prepared = prepare(parse_scene({**scene_data, "precision": precision}))
+        model = prepared.model
+        state = initial_state(prepared.scene, model)
+        from softsim.integrators.symplectic_euler import work_buffer
+
+        work = work_buffer(model)
+        for _ in range(4):             # in several calls: the state crosses to float32 and back each time
+            step(model, state, prepared.plan.dt, steps // 4, prepared.scene.damping, work)
+        out.append(state.x.copy())
+    return out[0], out[1], model.rest_points
+
+
+def test_float32_steel_cantilever_follows_float64():
+    """A steel beam's first steps move its vertices by ~1e-8 m a step, below float32's spacing at
+    1 m (1.2e-7 m): stored as displacements they add up as in float64."""
+    scene_data = {"mesh": {"shape": "box", "size": [1.0, 0.1, 0.1], "element_size": 0.05, "structured": True},
+                  "material": STEEL, "fixed": [{"min": [-1e-6, -1, -1], "max": [1e-6, 1, 1]}],
+                  "time": {"duration": 1.0}}
+    x64, x32, X = run_pair(scene_data, 400)
+    moved = np.abs(x64 - X).max()
+    assert moved > 1e-6
+    assert np.abs(x32 - x64).max() < 1e-4 * moved
+
+
+def test_float32_ground_damping_and_driven_vertices_follow_float64():
+    """A rubber cube dropped on the ground, damped, one face driven: float32 follows float64."""
+    scene_data = {"mesh": {"shape": "box", "size": [0.2, 0.2, 0.2], "element_size": 0.05, "structured": True},
+                  "material": {"model": "neohookean", "youngs_modulus": 1e6, "poissons_ratio": 0.45,
+                               "density": 1000.0},
+                  "initial_deformation": {"translation": [0.0, 0.0, 0.001]}, "initial_velocity": [0, 0, -1.0],
+                  "ground": {"height": 0.0}, "damping": 2.0,
+                  "fixed": [{"min": [-1, -1, 0.2 - 1e-6], "max": [1, 1, 1], "axes": ["x"], "velocity": [0.3, 0, 0]}],
+                  "time": {"duration": 1.0}}
+    x64, x32, X = run_pair(scene_data, 800)
+    moved = np.abs(x64 - X).max()
+    assert x64[:, 2].min() > -0.005          # the ground stopped it (in free fall it would be 0.3 m lower)
+    assert moved > 1e-3
+    assert np.abs(x32 - x64).max() < 1e-4 * moved
+
+
+def test_float32_refuses_corotated_with_a_one_line_error():
+    with pytest.raises(ConfigError, match=r"precision = 'float32'.*corotated.*linear, stvk, neohookean"):
+        parse_scene({"mesh": {"shape": "box", "size": [1, 1, 1], "element_size": 0.5},
+                     "material": {"model": "corotated", "youngs_modulus": 1e6, "poissons_ratio": 0.3,
+                                  "density": 1000.0},
+                     "precision": "float32"})
