@@ -90,11 +90,11 @@ def asm():
     from softsim.kernels import blocked
 
     buf = np.zeros(blocked.ROWS * blocked.BLOCK)
-    buf[: 9 * blocked.BLOCK] = 0.1
+    rest = np.full((blocked.REST_ROWS, blocked.BLOCK), 0.1)
     out = {}
     for name in ("linear", "stvk", "corotated", "neohookean"):
         fn = getattr(blocked, f"{name}_block")
-        fn(buf, 1.0, 1.0)
+        fn(rest, buf, 1.0, 1.0)
         code = "\n".join(fn.inspect_asm().values())
         counts = {}
         for m in re.finditer(r"^\s+(v(?:fn?m(?:add|sub)\w*|mul|add|sub|div|sqrt)(?:pd|sd|\d*pd|\d*sd))\s+([^\n]*)", code, re.M):

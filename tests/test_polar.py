@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 import naive
-from softsim.kernels.blocked import BLOCK, FALLBACK_VECTOR_MIN_LANES, ROW_F, ROW_VOLUME, ROW_X, ROWS, corotated_block
+from softsim.kernels.blocked import (BLOCK, FALLBACK_VECTOR_MIN_LANES, REST_ROWS, ROW_F, ROW_VOLUME, ROW_X, ROWS,
+                                     corotated_block)
 from softsim.kernels.polar3 import jacobi_polar_rotation, newton_polar_rotation_jit, polar_rotation
 from softsim.materials.models import corotated_energy_density, corotated_first_piola, model_lame_parameters
 from test_blocked_kernels import Body
@@ -195,17 +196,18 @@ def test_singular_F_gives_a_finite_stress():
 
 
 def block_of(Fs):
-    """A scratch buffer whose lane j has deformation gradient exactly ``Fs[j]``: Dm^-1 = I, V0 = 1,
-    corner 0 at the origin, corners 1..3 at the columns of F; its corner forces are then exactly
-    ``-P`` (columns on corners 1..3)."""
-    buf = np.zeros(ROWS * BLOCK)
+    """The rest rows and scratch buffer of a block whose lane j has deformation gradient exactly
+    ``Fs[j]``: Dm^-1 = I, V0 = 1, corner 0 at the origin, corners 1..3 at the columns of F; its
+    corner forces are then exactly ``-P`` (columns on corners 1..3)."""
+    rest = np.zeros((REST_ROWS, BLOCK))
     for r in (0, 4, 8):
-        buf[r * BLOCK:(r + 1) * BLOCK] = 1.0
-    buf[ROW_VOLUME * BLOCK:(ROW_VOLUME + 1) * BLOCK] = 1.0
+        rest[r] = 1.0
+    rest[ROW_VOLUME] = 1.0
+    buf = np.zeros(ROWS * BLOCK)
     for c in range(1, 4):
         for k in range(3):
             buf[(ROW_X + 3 * c + k) * BLOCK:(ROW_X + 3 * c + k + 1) * BLOCK] = Fs[:, k, c - 1]
-    return buf
+    return rest, buf
 
 
 @pytest.mark.parametrize("fallbacks", [0, 3, FALLBACK_VECTOR_MIN_LANES + 1, BLOCK])
@@ -219,8 +221,8 @@ def test_lane_loop_gives_the_bits_of_the_per_tet_law(fallbacks):
                    else rotation(rng) @ (np.eye(3) + 0.05 * rng.normal(size=(3, 3))) for j in range(BLOCK)])
     Fs = Fs[rng.permutation(BLOCK)]
     assert sum(not newton_polar_rotation_jit(tuple(F.ravel()))[1] for F in Fs) == fallbacks
-    buf = block_of(Fs)
-    corotated_block(buf, LAM, MU)
+    rest, buf = block_of(Fs)
+    corotated_block(rest, buf, LAM, MU)
     for j in range(BLOCK):
         P = P_of(Fs[j])
         for c in range(1, 4):

@@ -2,18 +2,20 @@
 
 The per-tet kernel of ``forces.py`` reads ``x[tets[e]]`` and ``Dm_inv[e]`` from 2D/3D arrays and
 compiles to scalar code.  Here the tets are grouped into blocks of ``BLOCK`` and every quantity of a
-block is one row of ``BLOCK`` lanes in a single flat scratch buffer (structure of arrays):
+block is one row of ``BLOCK`` lanes (structure of arrays), read from the block's rest data
+``rest = block_rest[b]`` (10, BLOCK) and a flat scratch buffer ``buf``:
 
-    rows  0..8   Dm^-1 (row-major)          [1/m]     copied from ``block_rest[b, 0:9]``
-    row   9      rest volume V0             [m^3]     copied from ``block_rest[b, 9]``
-    rows 10..21  corner positions x_c,k     [m]       gathered from ``x``: row 10 + 3 c + k
-                 (or corner displacements u_c,k = x - X, in the displacement form below)
-    rows 22..33  corner forces f_c,k        [N]       row 22 + 3 c + k
-    row  34      corotated only: the lanes to redo with the Jacobi SVD (see ``corotated_block``)
+    rest rows 0..8   Dm^-1 (row-major)          [1/m]
+    rest row  9      rest volume V0             [m^3]
+    buf rows  0..11  corner positions x_c,k     [m]       gathered from ``x``: row 3 c + k
+                     (or corner displacements u_c,k = x - X, in the displacement form below)
+    buf rows 12..23  corner forces f_c,k        [N]       row 12 + 3 c + k
+    buf row   24     corotated only: the lanes to redo with the Jacobi SVD (see ``corotated_block``)
 
-Row offsets are compile-time constants and every access of the lane loop is ``buf[row * BLOCK + j]``
-of one array: LLVM sees that no store can alias a later load and emits packed SIMD code (AVX2 /
-AVX-512) with no runtime alias checks.  The material law in the lane loop is the 9-tuple function
+Row offsets are compile-time constants and every access of the lane loop is ``rest[row, j]`` or
+``buf[row * BLOCK + j]``: LLVM emits packed SIMD code (AVX2 / AVX-512), its one runtime alias check
+(``rest`` against ``buf``) outside the loop.  The rest rows are read in place: copying them into
+the buffer, as an earlier version did, cost as much as gathering the corners.  The material law in the lane loop is the 9-tuple function
 of ``materials.models``, inlined; one lane loop per model keeps the law a compile-time choice.
 
 Forces (Sifakis & Barbic 2012, section 4.3): ``H = -V0 P(F) Dm^-T``; its columns are the forces on
@@ -51,12 +53,13 @@ from .mat3 import mat3_mul_inline, mat3_mul_transpose_b_inline, mat3_scale_inlin
 from .polar3 import jacobi_rotation_and_stretch, newton_polar_rotation
 
 BLOCK = 64                 # tets per block (a multiple of the SIMD width: 8 doubles in AVX-512)
-ROW_DM_INV = 0
+ROW_DM_INV = 0             # rows of ``block_rest[b]``
 ROW_VOLUME = 9
-ROW_X = 10
-ROW_F = 22
-ROW_FALLBACK = 34          # corotated: 1.0 where Newton's polar iteration did not converge, else 0.0
-ROWS = 35                  # rows of the scratch buffer; ``ROWS * BLOCK`` float64 per chunk of blocks
+REST_ROWS = 10
+ROW_X = 0                  # rows of the scratch buffer
+ROW_F = 12
+ROW_FALLBACK = 24          # corotated: 1.0 where Newton's polar iteration did not converge, else 0.0
+ROWS = 25                  # rows of the scratch buffer; ``ROWS * BLOCK`` floats
 
 # corotated: the Jacobi SVD of the lanes where Newton's polar iteration did not converge runs as
 # a packed SIMD loop over the whole block (costing all 64 lanes) above this many such lanes, and
@@ -215,11 +218,8 @@ _neohookean_first_piola_displacement = njit_inline(neohookean_first_piola_displa
 
 
 @njit
-def load_block(x, block_tets, block_rest, b, buf):
-    """Copy block ``b``'s rest data and gather its corner positions into the scratch ``buf``."""
-    for r in range(10):
-        for j in range(BLOCK):
-            buf[r * BLOCK + j] = block_rest[b, r, j]
+def gather_corners(x, block_tets, b, buf):
+    """Gather block ``b``'s corner positions (or displacements) into the scratch ``buf``."""
     for c in range(4):
         for j in range(BLOCK):
             i = block_tets[b, c, j]
@@ -229,7 +229,7 @@ def load_block(x, block_tets, block_rest, b, buf):
 
 
 @njit_inline
-def lane_deformation_gradient(buf, j):
+def lane_deformation_gradient(rest, buf, j):
     """``F = Ds Dm^-1`` of lane ``j`` (9-tuple), ``Ds`` the edges ``x_c - x_0`` as columns; when the
     corner rows hold displacements, the same product is ``H = Du Dm^-1 = F - I``."""
     d = (buf[(ROW_X + 3) * BLOCK + j] - buf[ROW_X * BLOCK + j],
@@ -241,22 +241,20 @@ def lane_deformation_gradient(buf, j):
          buf[(ROW_X + 5) * BLOCK + j] - buf[(ROW_X + 2) * BLOCK + j],
          buf[(ROW_X + 8) * BLOCK + j] - buf[(ROW_X + 2) * BLOCK + j],
          buf[(ROW_X + 11) * BLOCK + j] - buf[(ROW_X + 2) * BLOCK + j])
-    return mat3_mul_inline(d, lane_rest_matrix(buf, j))
+    return mat3_mul_inline(d, lane_rest_matrix(rest, j))
 
 
 @njit_inline
-def lane_rest_matrix(buf, j):
+def lane_rest_matrix(rest, j):
     """``Dm^-1`` of lane ``j`` (9-tuple, row-major) [1/m]."""
-    return (buf[0 * BLOCK + j], buf[1 * BLOCK + j], buf[2 * BLOCK + j],
-            buf[3 * BLOCK + j], buf[4 * BLOCK + j], buf[5 * BLOCK + j],
-            buf[6 * BLOCK + j], buf[7 * BLOCK + j], buf[8 * BLOCK + j])
+    return (rest[0, j], rest[1, j], rest[2, j], rest[3, j], rest[4, j], rest[5, j], rest[6, j], rest[7, j], rest[8, j])
 
 
 @njit_inline
-def lane_store_forces(buf, j, P):
+def lane_store_forces(rest, buf, j, P):
     """Corner forces of lane ``j`` from its stress ``P``: ``H = -V0 P Dm^-T``, corner c (1..3) gets
     column c - 1 of H, ``f0 = -(f1 + f2 + f3)``."""
-    H = mat3_scale_inline(mat3_mul_transpose_b_inline(P, lane_rest_matrix(buf, j)), -buf[ROW_VOLUME * BLOCK + j])
+    H = mat3_scale_inline(mat3_mul_transpose_b_inline(P, lane_rest_matrix(rest, j)), -rest[ROW_VOLUME, j])
     lane_store_component(buf, j, 0, H[0], H[1], H[2])
     lane_store_component(buf, j, 1, H[3], H[4], H[5])
     lane_store_component(buf, j, 2, H[6], H[7], H[8])
@@ -273,27 +271,27 @@ def lane_store_component(buf, j, k, h1, h2, h3):
 
 
 @njit
-def stvk_block(buf, lam, mu):
+def stvk_block(rest, buf, lam, mu):
     for j in range(BLOCK):
-        lane_store_forces(buf, j, _stvk_first_piola(lane_deformation_gradient(buf, j), lam, mu))
+        lane_store_forces(rest, buf, j, _stvk_first_piola(lane_deformation_gradient(rest, buf, j), lam, mu))
 
 
 @njit
-def neohookean_block(buf, lam, mu):
+def neohookean_block(rest, buf, lam, mu):
     for j in range(BLOCK):
-        lane_store_forces(buf, j, _neohookean_first_piola(lane_deformation_gradient(buf, j), lam, mu))
+        lane_store_forces(rest, buf, j, _neohookean_first_piola(lane_deformation_gradient(rest, buf, j), lam, mu))
 
 
 @njit
-def corotated_block(buf, lam, mu):
+def corotated_block(rest, buf, lam, mu):
     """The rotation of each lane by Newton's polar iteration (``polar3.newton_polar_rotation``);
     the lanes where it did not converge (inverted, nearly flat or strongly stretched tets) are
     redone with the Jacobi SVD, as ``polar3.polar_rotation`` does per tet, and get the same bits."""
     fallbacks = 0
     for j in range(BLOCK):
-        F = lane_deformation_gradient(buf, j)
+        F = lane_deformation_gradient(rest, buf, j)
         R, converged = newton_polar_rotation(F)
-        lane_store_forces(buf, j, _corotated_stress(F, R, lam, mu))
+        lane_store_forces(rest, buf, j, _corotated_stress(F, R, lam, mu))
         buf[ROW_FALLBACK * BLOCK + j] = 0.0 if converged else 1.0
         fallbacks += 0 if converged else 1
     if fallbacks > FALLBACK_VECTOR_MIN_LANES:
@@ -301,9 +299,9 @@ def corotated_block(buf, lam, mu):
         # this loop compiled to scalar code (903 -> 1805 scalar instructions, inspect_asm).
         for j in range(BLOCK):                    # packed SIMD over all lanes, stores masked
             if buf[ROW_FALLBACK * BLOCK + j] != 0.0:
-                F = lane_deformation_gradient(buf, j)
+                F = lane_deformation_gradient(rest, buf, j)
                 R, _, _, _ = jacobi_rotation_and_stretch(F)
-                lane_store_forces(buf, j, _corotated_stress(F, R, lam, mu))
+                lane_store_forces(rest, buf, j, _corotated_stress(F, R, lam, mu))
     elif fallbacks > 0:
         k = 0
         for j in range(BLOCK):                    # the lanes to redo, listed first in the fallback row
@@ -312,33 +310,33 @@ def corotated_block(buf, lam, mu):
                 k += 1
         for k in range(fallbacks):                # scalar, one listed lane at a time
             j = int(buf[ROW_FALLBACK * BLOCK + k])
-            F = lane_deformation_gradient(buf, j)
+            F = lane_deformation_gradient(rest, buf, j)
             R, _, _, _ = jacobi_rotation_and_stretch(F)
-            lane_store_forces(buf, j, _corotated_stress(F, R, lam, mu))
+            lane_store_forces(rest, buf, j, _corotated_stress(F, R, lam, mu))
 
 
 @njit
-def linear_block(buf, lam, mu):
+def linear_block(rest, buf, lam, mu):
     for j in range(BLOCK):
-        lane_store_forces(buf, j, _linear_first_piola(lane_deformation_gradient(buf, j), lam, mu))
+        lane_store_forces(rest, buf, j, _linear_first_piola(lane_deformation_gradient(rest, buf, j), lam, mu))
 
 
 @njit
-def stvk_displacement_block(buf, lam, mu):
+def stvk_displacement_block(rest, buf, lam, mu):
     for j in range(BLOCK):
-        lane_store_forces(buf, j, _stvk_first_piola_displacement(lane_deformation_gradient(buf, j), lam, mu))
+        lane_store_forces(rest, buf, j, _stvk_first_piola_displacement(lane_deformation_gradient(rest, buf, j), lam, mu))
 
 
 @njit
-def neohookean_displacement_block(buf, lam, mu):
+def neohookean_displacement_block(rest, buf, lam, mu):
     for j in range(BLOCK):
-        lane_store_forces(buf, j, _neohookean_first_piola_displacement(lane_deformation_gradient(buf, j), lam, mu))
+        lane_store_forces(rest, buf, j, _neohookean_first_piola_displacement(lane_deformation_gradient(rest, buf, j), lam, mu))
 
 
 @njit
-def linear_displacement_block(buf, lam, mu):
+def linear_displacement_block(rest, buf, lam, mu):
     for j in range(BLOCK):
-        lane_store_forces(buf, j, _linear_first_piola_displacement(lane_deformation_gradient(buf, j), lam, mu))
+        lane_store_forces(rest, buf, j, _linear_first_piola_displacement(lane_deformation_gradient(rest, buf, j), lam, mu))
 
 
 @njit
@@ -348,23 +346,24 @@ def block_forces(x, block_tets, block_rest, b, model, lam, mu, buf, rest):
     rest: None when ``x`` holds positions; the rest positions when ``x`` holds displacements from
     them (the laws then take ``H = F - I``; ``materials.models.DISPLACEMENT_FORM_MODELS`` only).
     """
-    load_block(x, block_tets, block_rest, b, buf)
+    gather_corners(x, block_tets, b, buf)
+    block = block_rest[b]
     if rest is None:
         if model == STVK:
-            stvk_block(buf, lam, mu)
+            stvk_block(block, buf, lam, mu)
         elif model == NEOHOOKEAN:
-            neohookean_block(buf, lam, mu)
+            neohookean_block(block, buf, lam, mu)
         elif model == COROTATED:
-            corotated_block(buf, lam, mu)
+            corotated_block(block, buf, lam, mu)
         else:
-            linear_block(buf, lam, mu)
+            linear_block(block, buf, lam, mu)
     else:
         if model == STVK:
-            stvk_displacement_block(buf, lam, mu)
+            stvk_displacement_block(block, buf, lam, mu)
         elif model == NEOHOOKEAN:
-            neohookean_displacement_block(buf, lam, mu)
+            neohookean_displacement_block(block, buf, lam, mu)
         elif model == LINEAR:
-            linear_displacement_block(buf, lam, mu)
+            linear_displacement_block(block, buf, lam, mu)
         else:
             raise ValueError("this material model has no displacement form")
 
