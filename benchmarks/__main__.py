@@ -63,7 +63,7 @@ def main(argv=None):
         ("startup", lambda: suite.startup(10_000)),
         ("layers", lambda: suite.threading_layers(mid, seconds, 1 if quick else 3)),
         ("simd", suite.simd),
-        ("precision", suite.precision),
+        ("precision", lambda: suite.precision(mid, 100_000 if quick else 1_000_000, seconds, repeats, threads)),
     ]
     for name, run in sections:
         if not on(name):

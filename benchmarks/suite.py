@@ -287,5 +287,30 @@ def simd():
     return rows
 
 
-def precision():
-    return [row("precision", "float32", note="not implemented yet: softsim steps in float64 only")]
+PRECISION_MODELS = ("linear", "stvk", "neohookean")      # the models with a float32 step
+
+
+def precision(target, large, seconds, repeats, threads):
+    """float32 against float64: each model with a float32 step on the beam of ``target`` tets, StVK
+    also at ``large`` tets; with the difference of the positions after ``CHECK_STEPS`` steps."""
+    rows = []
+    for size, names in ((target, PRECISION_MODELS), (large, ("stvk",))):
+        for name in names:
+            runners = {p: Softsim(prepared_beam(size, name, precision=p)) for p in ("float64", "float32")}
+            for sim in runners.values():
+                sim.run(CHECK_STEPS)
+            x64, x32 = runners["float64"].positions(), runners["float32"].positions()
+            moved = float(np.abs(x64 - runners["float64"].model.rest_points).max())
+            difference = float(np.abs(x32 - x64).max())
+            rates = interleaved(runners, seconds, repeats)
+            ratio = median_ratio(rates, "float32", "float64")
+            tets = runners["float64"].tet_count
+            log(f"  {name} {tets} tets: float32 / float64 = {ratio:.2f}; positions differ by {difference:.1e} m "
+                f"of {moved:.1e} m")
+            rows.append(row("precision", f"{name} float64", tets, "softsim", threads,
+                            statistics.median(rates["float64"])))
+            rows.append(row("precision", f"{name} float32", tets, "softsim", threads,
+                            statistics.median(rates["float32"]), ratio, "float64",
+                            note=f"after {CHECK_STEPS} steps max abs(x32 - x64) = {difference:.1e} m, "
+                                 f"{difference / moved:.1e} of the largest displacement"))
+    return rows

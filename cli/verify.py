@@ -3,6 +3,7 @@
 
 import click
 
+from softsim.config.schema import PRECISIONS
 from softsim.verify.cases import CASES, MODELS
 from softsim.verify.report import replot_report, verify_report
 
@@ -13,6 +14,8 @@ from softsim.verify.report import replot_report, verify_report
               help="Only this case (repeatable; default: all).")
 @click.option("--model", "models", multiple=True, type=click.Choice(MODELS),
               help="Only this material model (repeatable; default: every model that applies).")
+@click.option("--precision", "precisions", multiple=True, type=click.Choice(PRECISIONS),
+              help="Only this precision of the step (repeatable; default: both, float32 for the models that have it).")
 @click.option("-o", "--output", "out_dir", type=click.Path(file_okay=False, path_type=str), default="verify",
               show_default=True, help="Folder for verify.csv, verify_<case>.png and verify.md.")
 @click.option("--threads", type=click.IntRange(min=1), default=None,
@@ -20,7 +23,7 @@ from softsim.verify.report import replot_report, verify_report
 @click.option("--replot", is_flag=True,
               help="Run nothing: redraw the plots and verify.md from OUTPUT/verify.csv (e.g. after installing "
                    "the plot extra).")
-def verify(quick, cases, models, out_dir, threads, replot):
+def verify(quick, cases, models, precisions, out_dir, threads, replot):
     """Run verification cases with analytic answers over ladders of element size and time step,
     for every material model, and write the error against wall time: verify.csv, one plot per
     case and verify.md (the cheapest run for an error budget of 1 % and 0.1 %).
@@ -28,13 +31,14 @@ def verify(quick, cases, models, out_dir, threads, replot):
     \b
     Examples:
       softsim verify --quick -o verify-quick
-      softsim verify --case cantilever --model stvk
+      softsim verify --case cantilever --model stvk --precision float32
       softsim verify --replot -o verify
     """
     if replot:
         report = replot_report(out_dir, quick=quick)
     else:
         report = verify_report(out_dir, quick=quick, cases=cases or None, models=models or MODELS, threads=threads,
+                               precisions=precisions or PRECISIONS,
                                progress=lambda line: click.echo(line, err=True))
     click.echo(report.table())
     for name, lines in report.budgets.items():

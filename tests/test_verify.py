@@ -19,7 +19,7 @@ import pytest
 from softsim.verify import references as ref
 from softsim.verify.cases import CASES, AxialVibration, Cantilever, Energy, Traction
 from softsim.verify.driver import with_lame, with_rest_state
-from softsim.verify.report import COLUMNS, pareto_front, verify_report
+from softsim.verify.report import COLUMNS, ladders, pareto_front, verify_report
 
 ROTATION_INVARIANT = ("stvk", "corotated", "neohookean")
 # Long checks run only with SOFTSIM_SLOW=1 (pyproject's "slow" marker).
@@ -29,7 +29,7 @@ slow = [pytest.mark.slow, pytest.mark.skipif(not os.environ.get("SOFTSIM_SLOW"),
 @pytest.fixture(scope="module")
 def report(tmp_path_factory):
     out = tmp_path_factory.mktemp("verify")
-    return verify_report(out, quick=True, threads=1)
+    return verify_report(out, quick=True, threads=1, precisions=("float64",))
 
 
 def rows_of(rows, case, quantity, model=None, ladder=None):
@@ -144,6 +144,25 @@ def test_quick_report_writes_csv_plots_and_summary(report):
     assert {r.model for r in report.rows} == {"linear", "stvk", "corotated", "neohookean"}
     assert all(r.precision == "float64" and r.wall_time_s > 0.0 for r in report.rows)
     assert all(r.steps > 0 for r in report.rows if r.quantity != "interior force at AX+b")
+
+
+def test_float32_rows_match_float64_to_float32_round_off():
+    """``precisions`` adds float32 rows for the models that have a float32 step: the cantilever's
+    deflections agree with float64 to 1e-5 (float32 keeps 7 digits; the tip sags 1e-3 m), and the
+    report's ladders keep the two precisions apart."""
+    rows = CASES["cantilever"](models=("stvk", "corotated"), quick=True, precisions=("float64", "float32"))
+    assert {(r.model, r.precision) for r in rows} == {("stvk", "float64"), ("stvk", "float32"),
+                                                       ("corotated", "float64")}
+    pairs = {}
+    for r in rows:
+        if r.quantity == "tip deflection" and r.model == "stvk":
+            pairs.setdefault(r.tets, {})[r.precision] = r.value
+    assert len(pairs) == 3
+    for values in pairs.values():
+        assert abs(values["float32"] - values["float64"]) < 1e-5 * abs(values["float64"])
+    keys = {key for key in ladders(rows) if key[1] == "tip deflection"}
+    assert ("cantilever", "tip deflection", "stvk float32", "element_size") in keys
+    assert all(len(group) == 3 for key, group in ladders(rows).items() if key[1] == "tip deflection")
 
 
 def test_quick_cantilever_converges_towards_the_3d_beam(report):

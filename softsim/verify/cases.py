@@ -20,6 +20,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from ..config.schema import FLOAT32_MODELS
 from ..kernels.forces import elastic_forces
 from ..materials.models import MODEL_IDS, ROTATION_INVARIANT, model_lame_parameters
 from ..simulation import frame_energy
@@ -62,6 +63,11 @@ class VerifyRow:
     note: str = ""
     reference_uncertainty: float = 0.0
 
+    @property
+    def variant(self):
+        """The model, and the precision where it is not float64: ``stvk``, ``stvk float32``."""
+        return self.model if self.precision == "float64" else f"{self.model} {self.precision}"
+
 
 def _structured_box(size, element_size, material, **extra):
     data = {
@@ -96,18 +102,18 @@ def _row(case, quantity, run, ladder, refinement, value, reference_value, refere
 
 def _report(progress, row):
     if progress is not None:
-        progress(f"{row.case} / {row.model}: {row.quantity} h={row.element_size:.4g} m dt={row.dt:.3g} s: "
+        progress(f"{row.case} / {row.variant}: {row.quantity} h={row.element_size:.4g} m dt={row.dt:.3g} s: "
                  f"error {row.error:.3g} ({row.reference}) in {row.wall_time_s:.2f} s")
 
 
 def with_orders(rows):
-    """``rows`` with ``order`` and ``order_self`` filled in per ladder (same case, quantity, model,
-    ladder), rungs ordered from coarse to fine; other rows unchanged."""
+    """``rows`` with ``order`` and ``order_self`` filled in per ladder (same case, quantity, model and
+    precision, ladder), rungs ordered from coarse to fine; other rows unchanged."""
     out = list(rows)
     groups = {}
     for i, row in enumerate(out):
         if row.ladder != "-":
-            groups.setdefault((row.case, row.quantity, row.model, row.ladder), []).append(i)
+            groups.setdefault((row.case, row.quantity, row.variant, row.ladder), []).append(i)
     for indices in groups.values():
         indices.sort(key=lambda i: -out[i].refinement)
         p = [out[i].refinement for i in indices]
@@ -143,7 +149,7 @@ class Cantilever:
     rest_tolerance: float = 2e-6     # stop when the tip moves less than this fraction per 1/omega_1
 
 
-def run_cantilever(p=Cantilever(), quick=False, models=MODELS, mutate=None, progress=None):
+def run_cantilever(p=Cantilever(), quick=False, models=MODELS, mutate=None, progress=None, precision="float64"):
     """Tip deflection against Timoshenko beam theory, or against the Richardson limit of the ladder
     where the error is below a few times the 3D clamp's own difference from beam theory."""
     case = "cantilever"
@@ -159,7 +165,7 @@ def run_cantilever(p=Cantilever(), quick=False, models=MODELS, mutate=None, prog
         for n in mine:
             scene = _structured_box((L, t, t), t / n, _material(model, p), gravity=[0.0, 0.0, -p.gravity],
                                     damping=2.0 * omega, fixed=[_clamp()])
-            run = Run(scene, mutate=mutate)
+            run = Run(scene, mutate=mutate, precision=precision)
             X = run.model.rest_points
             tip = face_mask(X, 0, L, 1e-9 * L)
 
@@ -259,7 +265,7 @@ def fit_period(times, values, guess):
     return 2.0 * math.pi / (0.5 * (lo + hi))
 
 
-def run_axial_vibration(p=AxialVibration(), quick=False, models=MODELS, mutate=None, progress=None):
+def run_axial_vibration(p=AxialVibration(), quick=False, models=MODELS, mutate=None, progress=None, precision="float64"):
     """Period of the free end against ``4 L / sqrt(E / rho)``."""
     case = "axial-vibration"
     L = p.length
@@ -272,7 +278,7 @@ def run_axial_vibration(p=AxialVibration(), quick=False, models=MODELS, mutate=N
         @functools.cache                 # the dt ladder's first rung may be a rung of the mesh ladder
         def measure(n, factor):
             scene = _structured_box((L, p.width, p.width), L / n, {"model": model, **material}, fixed=[_clamp()])
-            run = Run(scene, dt_factor=factor, mutate=mutate)
+            run = Run(scene, dt_factor=factor, mutate=mutate, precision=precision)
             X = run.model.rest_points
             u = p.strain * (2.0 * L / math.pi) * np.sin(0.5 * math.pi * X[:, 0] / L)
             run.restart_from(X + np.stack([u, np.zeros_like(u), np.zeros_like(u)], axis=1))
@@ -326,7 +332,7 @@ class Traction:
     rest_tolerance: float = 1e-9
 
 
-def run_traction(p=Traction(), quick=False, models=MODELS, mutate=None, progress=None):
+def run_traction(p=Traction(), quick=False, models=MODELS, mutate=None, progress=None, precision="float64"):
     """Elongation ``sigma L / E`` and lateral contraction ``nu sigma w / E`` (small strain), and both
     against the exact homogeneous stretch of each material law (``references.uniaxial_stretches``)."""
     case = "traction"
@@ -346,7 +352,7 @@ def run_traction(p=Traction(), quick=False, models=MODELS, mutate=None, progress
                        {"min": [-1e9, -BOX, -1e9], "max": [1e9, BOX, 1e9], "axes": ["y"]},
                        {"min": [-1e9, -1e9, -BOX], "max": [1e9, 1e9, BOX], "axes": ["z"]}],
                 tractions=[{"min": [L - BOX, -1e9, -1e9], "max": [L + BOX, 1e9, 1e9], "traction": [sigma, 0, 0]}])
-            run = Run(scene, mutate=mutate)
+            run = Run(scene, mutate=mutate, precision=precision)
             X = run.model.rest_points
             end = face_mask(X, 0, L, 1e-9 * L)
             side = face_mask(X, 1, W, 1e-9 * W)
@@ -415,7 +421,7 @@ class RigidMotion:
     samples_per_turn: int = 64
 
 
-def run_rigid_motion(p=RigidMotion(), quick=False, models=MODELS, mutate=None, progress=None):
+def run_rigid_motion(p=RigidMotion(), quick=False, models=MODELS, mutate=None, progress=None, precision="float64"):
     """Centroid drop, then edge lengths and angular momentum of a spinning cube."""
     case = "rigid-motion"
     a = p.size
@@ -430,7 +436,7 @@ def run_rigid_motion(p=RigidMotion(), quick=False, models=MODELS, mutate=None, p
         for factor in factors:
             scene = _structured_box((a, a, a), p.fall_element_size, _material(model, p),
                                     gravity=[0.0, 0.0, -p.gravity])
-            run = Run(scene, dt_factor=factor, mutate=mutate)
+            run = Run(scene, dt_factor=factor, mutate=mutate, precision=precision)
             mass = run.model.mass
 
             def centroid_z():
@@ -447,7 +453,7 @@ def run_rigid_motion(p=RigidMotion(), quick=False, models=MODELS, mutate=None, p
 
         scene = _structured_box((a, a, a), p.spin_element_size, _material(model, p),
                                 angular_velocity=[float(v) for v in omega * axis])
-        run = Run(scene, mutate=mutate)
+        run = Run(scene, mutate=mutate, precision=precision)
         mass = run.model.mass[:, None]
         edges = unique_edges(run.model.tets)
         rest_length = np.linalg.norm(run.state.x[edges[:, 1]] - run.state.x[edges[:, 0]], axis=1)
@@ -508,7 +514,7 @@ class Patch:
     target: float = 1e-11     # stop relaxing below this max |F - A| / max |A - I|
 
 
-def run_patch(p=Patch(), quick=False, models=MODELS, mutate=None, progress=None):
+def run_patch(p=Patch(), quick=False, models=MODELS, mutate=None, progress=None, precision="float64"):
     """Interior force residual at ``A X + b``, then ``max |F - A|`` after relaxation."""
     case = "patch"
     a = p.size
@@ -532,7 +538,7 @@ def run_patch(p=Patch(), quick=False, models=MODELS, mutate=None, progress=None)
                 "fixed": faces,
                 "initial_deformation": {"matrix": A.tolist(), "translation": list(p.translation)},
             }
-            run = Run(scene, mutate=mutate)
+            run = Run(scene, mutate=mutate, precision=precision)
             m = run.model
             free = ~m.held.any(axis=1)
             started = time.perf_counter()
@@ -594,7 +600,7 @@ class Energy:
     quick_dt_factors: tuple = (1.0, 0.5, 0.25)
 
 
-def run_energy(p=Energy(), quick=False, models=MODELS, mutate=None, progress=None):
+def run_energy(p=Energy(), quick=False, models=MODELS, mutate=None, progress=None, precision="float64"):
     """Energy error and drift of symplectic Euler against dt."""
     case = "energy"
     L, t = p.length, p.thickness
@@ -607,7 +613,7 @@ def run_energy(p=Energy(), quick=False, models=MODELS, mutate=None, progress=Non
         for factor in factors:
             scene = _structured_box((L, t, t), p.element_size, _material(model, p), gravity=[0.0, 0.0, -p.gravity],
                                     fixed=[_clamp()])
-            run = Run(scene, dt_factor=factor, mutate=mutate)
+            run = Run(scene, dt_factor=factor, mutate=mutate, precision=precision)
             m = run.reference_model
 
             def energies():
@@ -652,10 +658,17 @@ class Case:
     primary: str
     models: tuple = field(default=MODELS)
 
-    def __call__(self, quick=False, models=None, mutate=None, progress=None, params=None):
-        chosen = tuple(m for m in (models or MODELS) if m in self.models)
-        return with_orders(self.run(params or self.params, quick=quick, models=chosen, mutate=mutate,
-                                    progress=progress))
+    def __call__(self, quick=False, models=None, mutate=None, progress=None, params=None, precisions=("float64",)):
+        """Rows of every model of ``models`` (default all) in every precision of ``precisions``
+        (float32 for the models that have it)."""
+        rows = []
+        for precision in precisions:
+            chosen = tuple(m for m in (models or MODELS)
+                           if m in self.models and (precision == "float64" or m in FLOAT32_MODELS))
+            if chosen:
+                rows += self.run(params or self.params, quick=quick, models=chosen, mutate=mutate, progress=progress,
+                                 precision=precision)
+        return with_orders(rows)
 
 
 CASES = {

@@ -29,15 +29,15 @@ class Run:
 
     scene_data: the raw scene mapping (validated with ``parse_scene``); dt_factor: the step is
     ``dt_factor x`` the ``dt: auto`` step (``AUTO_SAFETY x`` the stable-step bound) of the model
-    run; mutate: optional ``Model -> Model`` applied after preparation.
+    run; mutate: optional ``Model -> Model`` applied after preparation; precision: of the step.
     Attributes: scene, model (the one stepped), reference_model (as prepared, before ``mutate``:
     energies are measured with it, so a broken force shows as energy that is not conserved), dt [s],
     state, steps (taken), wall_time_s, setup_s.
     """
 
-    def __init__(self, scene_data, dt_factor=1.0, mutate=None):
+    def __init__(self, scene_data, dt_factor=1.0, mutate=None, precision="float64"):
         started = _time.perf_counter()
-        self.scene = parse_scene(copy.deepcopy(scene_data))
+        self.scene = parse_scene({**copy.deepcopy(scene_data), "precision": precision})
         prepared = prepare(self.scene)
         model = prepared.model if mutate is None else mutate(prepared.model)
         self.model = model

@@ -23,6 +23,7 @@ import time as _time
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..config.schema import PRECISIONS
 from ..errors import PLOT_EXTRA, ConfigError, MissingDependencyError
 from . import references as ref
 from .cases import CASES, MODELS, VerifyRow
@@ -106,16 +107,17 @@ def pareto_front(times, errors):
 
 
 def ladders(rows):
-    """``{(case, quantity, model, ladder): [rows coarse -> fine]}`` of the rows with a ladder."""
+    """``{(case, quantity, variant, ladder): [rows coarse -> fine]}`` of the rows with a ladder
+    (variant: ``VerifyRow.variant``, the model and a precision other than float64)."""
     groups = {}
     for r in rows:
         if r.ladder != "-":
-            groups.setdefault((r.case, r.quantity, r.model, r.ladder), []).append(r)
+            groups.setdefault((r.case, r.quantity, r.variant, r.ladder), []).append(r)
     return {k: sorted(v, key=lambda r: -r.refinement) for k, v in groups.items()}
 
 
 def fitted_orders(rows):
-    """``{(case, quantity, model, ladder): (order over all rungs, order over the last two)}``."""
+    """``{(case, quantity, variant, ladder): (order over all rungs, order over the last two)}``."""
     out = {}
     for key, group in ladders(rows).items():
         p = [r.refinement for r in group]
@@ -125,7 +127,7 @@ def fitted_orders(rows):
 
 
 def _describe(r):
-    return (f"{r.model}, element size {r.element_size:.3g} m ({r.tets} tets), dt {r.dt:.3g} s, {r.steps} steps: "
+    return (f"{r.variant}, element size {r.element_size:.3g} m ({r.tets} tets), dt {r.dt:.3g} s, {r.steps} steps: "
             f"{r.wall_time_s:.3g} s (error {r.error:.2e} against {r.reference})")
 
 
@@ -159,7 +161,7 @@ def _extrapolated_cost(rows, best, budget):
     (dt: auto); empty where there is no such ladder or no convergence."""
     if best.ladder != "element_size":
         return ""
-    group = sorted((r for r in rows if r.model == best.model and r.ladder == "element_size"),
+    group = sorted((r for r in rows if r.variant == best.variant and r.ladder == "element_size"),
                    key=lambda r: -r.refinement)[-3:]
     order = ref.fitted_order([r.refinement for r in group], [r.error for r in group])
     if order is None or order < 0.3 or len(group) < 2:
@@ -211,13 +213,15 @@ def plot_case(case, rows, path):
         mine = [r for r in rows if r.quantity == quantity]
         groups = {}
         for r in mine:
-            groups.setdefault((r.model, r.ladder), []).append(r)
-        for (model, ladder), group in groups.items():
+            groups.setdefault((r.variant, r.ladder), []).append(r)
+        for (variant, ladder), group in groups.items():
             group.sort(key=lambda r: -r.refinement)
             marker, line = LADDER_STYLES.get(ladder, ("o", "-"))
-            label = model if ladder == "-" else f"{model}, {ladder.replace('_', ' ')} ladder"
+            label = variant if ladder == "-" else f"{variant}, {ladder.replace('_', ' ')} ladder"
+            single = group[0].precision == "float32"      # float32: open markers
             ax.plot([r.wall_time_s for r in group], [max(r.error, PLOT_FLOOR) for r in group], marker=marker,
-                    ls=line, color=MODEL_COLOURS.get(model, "k"), ms=5, lw=1.2, alpha=0.85, label=label)
+                    ls=line, color=MODEL_COLOURS.get(group[0].model, "k"), ms=5, lw=1.2, alpha=0.85, label=label,
+                    mfc="none" if single else None)
         times = [r.wall_time_s for r in mine]
         errors = [max(r.error, PLOT_FLOOR) for r in mine]
         front = pareto_front(times, errors)
@@ -276,7 +280,7 @@ def _order_lines(rows, case_name):
     for (case, quantity, model, ladder), (order, last) in fitted_orders(rows).items():
         if case != case_name:
             continue
-        group = ladders(rows)[(case, quantity, model, ladder)]
+        group = ladders(rows)[(case, quantity, model, ladder)]     # model: the variant
         errors = ", ".join(f"{r.error:.2e}" for r in group)
         self_order = group[-1].order_self
         parts = [f"fitted {order:.2f}" if order is not None else "fitted -",
@@ -366,18 +370,18 @@ def write_summary(path, rows, quick, budgets, plot_paths, plot_note, machine, wa
         finest = {}
         for r in mine:
             if r.ladder != "-" and r.quantity == case.primary:
-                best = finest.get(r.model)
+                best = finest.get(r.variant)
                 if best is None or (r.element_size, r.dt) < (best.element_size, best.dt):
-                    finest[r.model] = r
+                    finest[r.variant] = r
         if finest:
             lines += ["| model | finest run of the " + case.primary + " | error | note |", "|---|---|---|---|"]
-            lines += [f"| {r.model} | {r.tets} tets, dt {r.dt:.3g} s, {r.steps} steps, {r.wall_time_s:.3g} s | "
+            lines += [f"| {r.variant} | {r.tets} tets, dt {r.dt:.3g} s, {r.steps} steps, {r.wall_time_s:.3g} s | "
                       f"{r.error:.2e} | {r.note} |" for r in finest.values()]
             lines.append("")
         singles = [r for r in mine if r.ladder == "-"]
         if singles:
             lines += ["| quantity | model | error | reference | note |", "|---|---|---|---|---|"]
-            lines += [f"| {r.quantity} | {r.model} | {r.error:.2e} | {r.reference} | {r.note} |" for r in singles]
+            lines += [f"| {r.quantity} | {r.variant} | {r.error:.2e} | {r.reference} | {r.note} |" for r in singles]
             lines.append("")
         if budgets.get(name):
             lines += [f"Cheapest run for an error budget on the {case.primary}:", ""]
@@ -391,10 +395,11 @@ def write_summary(path, rows, quick, budgets, plot_paths, plot_note, machine, wa
 
 
 def verify_report(out_dir, quick=False, cases=None, models=MODELS, plot=True, progress=None, mutate=None,
-                  threads=None):
+                  threads=None, precisions=PRECISIONS):
     """Run the verification cases into ``out_dir``; a ``VerifyReport``.
 
     cases: case names (default all of ``CASES``); models: material models (default all four);
+    precisions: of the step (default float64 and float32, which runs the models that have it);
     plot: write the PNGs when matplotlib is there; progress: callable taking one line of text
     after each run; mutate: ``Model -> Model`` applied to every prepared model (tests); threads:
     Numba threads for the run (default: Numba's setting).
@@ -408,6 +413,9 @@ def verify_report(out_dir, quick=False, cases=None, models=MODELS, plot=True, pr
     bad = [m for m in models if m not in MODELS]
     if bad:
         raise ConfigError(f"unknown material model {', '.join(bad)} (known: {', '.join(MODELS)})")
+    bad = [p for p in precisions if p not in PRECISIONS]
+    if bad or not precisions:
+        raise ConfigError(f"precision {', '.join(bad) or '(none)'}: must be one or more of {', '.join(PRECISIONS)}")
     import numba
 
     if threads is not None and not 1 <= threads <= numba.config.NUMBA_NUM_THREADS:
@@ -418,7 +426,8 @@ def verify_report(out_dir, quick=False, cases=None, models=MODELS, plot=True, pr
         load_start = _load()
         rows = []
         for name in names:
-            rows += CASES[name](quick=quick, models=models, mutate=mutate, progress=progress)
+            rows += CASES[name](quick=quick, models=models, mutate=mutate, progress=progress,
+                                precisions=tuple(precisions))
         machine = _machine_line(numba.get_num_threads(), (load_start, _load()))
     finally:
         numba.set_num_threads(previous)      # the caller's setting again
