@@ -90,7 +90,7 @@ def asm():
     from softsim.kernels import blocked
 
     buf = np.zeros(blocked.ROWS * blocked.BLOCK)
-    rest = np.full((blocked.REST_ROWS, blocked.BLOCK), 0.1)
+    rest = np.full((blocked.GROUPS, blocked.REST_ROWS, blocked.GROUP), 0.1)
     out = {}
     for name in ("linear", "stvk", "corotated", "neohookean"):
         fn = getattr(blocked, f"{name}_block")

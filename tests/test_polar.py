@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import naive
-from softsim.kernels.blocked import (BLOCK, FALLBACK_VECTOR_MIN_LANES, REST_ROWS, ROW_F, ROW_VOLUME, ROW_X, ROWS,
+from softsim.kernels.blocked import (BLOCK, FALLBACK_VECTOR_MIN_LANES, GROUP, GROUPS, REST_ROWS, ROW_F, ROW_VOLUME, ROW_X, ROWS,
                                      corotated_block)
 from softsim.kernels.polar3 import jacobi_polar_rotation, newton_polar_rotation_jit, polar_rotation
 from softsim.materials.models import corotated_energy_density, corotated_first_piola, model_lame_parameters
@@ -199,10 +199,10 @@ def block_of(Fs):
     """The rest rows and scratch buffer of a block whose lane j has deformation gradient exactly
     ``Fs[j]``: Dm^-1 = I, V0 = 1, corner 0 at the origin, corners 1..3 at the columns of F; its
     corner forces are then exactly ``-P`` (columns on corners 1..3)."""
-    rest = np.zeros((REST_ROWS, BLOCK))
+    rest = np.zeros((GROUPS, REST_ROWS, GROUP))
     for r in (0, 4, 8):
-        rest[r] = 1.0
-    rest[ROW_VOLUME] = 1.0
+        rest[:, r] = 1.0
+    rest[:, ROW_VOLUME] = 1.0
     buf = np.zeros(ROWS * BLOCK)
     for c in range(1, 4):
         for k in range(3):
