@@ -17,8 +17,10 @@ Row offsets are compile-time constants and every access of the lane loop is ``re
 (``rest`` against ``buf``) outside the loop over a group's lanes.  The rest rows are read in place:
 copying them into the buffer, as an earlier version did, cost as much as gathering the corners.
 They are stored in groups of ``GROUP`` lanes, a group's ten rows one after the other, so that a
-block's rest data is read in address order: read as ten rows of 64 lanes (ten interleaved
-streams 512 B apart) it came from memory at 11 GB/s on one core, in groups of 8 lanes at 31 GB/s.  The material law in the lane loop is the 9-tuple function
+block's rest data is read nearly in address order.  Streaming such rows from memory on one core
+(float64): ten rows of 64 lanes (ten interleaved streams 512 B apart) 11 GB/s, groups of 16 lanes
+22 GB/s, of 8 lanes 31 GB/s; but LLVM does not vectorise a loop of fewer than 16 iterations that
+needs a runtime alias check, so groups hold 16.  The material law in the lane loop is the 9-tuple function
 of ``materials.models``, inlined; one lane loop per model keeps the law a compile-time choice.
 
 Forces (Sifakis & Barbic 2012, section 4.3): ``H = -V0 P(F) Dm^-T``; its columns are the forces on
@@ -56,7 +58,7 @@ from .mat3 import mat3_mul_inline, mat3_mul_transpose_b_inline, mat3_scale_inlin
 from .polar3 import jacobi_rotation_and_stretch, newton_polar_rotation
 
 BLOCK = 64                 # tets per block (a multiple of the SIMD width: 8 doubles in AVX-512)
-GROUP = 16                 # lanes per group of the rest data
+GROUP = 16                 # lanes per group of the rest data (the lane loop's trip count)
 GROUPS = BLOCK // GROUP
 ROW_DM_INV = 0             # rows of ``block_rest[b, g]``
 ROW_VOLUME = 9
