@@ -138,3 +138,63 @@ def test_small_meshes_step_on_fewer_threads():
     assert step_threads(10 ** 7, 2) == 2
     assert step_threads(10 ** 7, 16) == 16
     assert step_threads(5 * TETS_PER_THREAD, 16) == 5
+
+
+def test_each_vertex_is_moved_by_the_first_part_in_colour_order_that_uses_it():
+    points, tets = structured_box((24.0, 6.0, 6.0), (0.0, 0.0, 0.0), 1.0)
+    points, tets, _, _ = renumber_for_locality(points, tets, slabs=8)
+    points = np.vstack([points, [[99.0, 99.0, 99.0]]])          # a vertex no tet uses
+    body = Body(points, tets, "colour")
+    layout = body.blocks
+    owner = np.full(body.node_count, -1)
+    for p in range(layout.part_offsets.shape[0] - 1):
+        mine = layout.owned[layout.owned_offsets[p]:layout.owned_offsets[p + 1]]
+        assert (np.diff(mine) > 0).all()
+        assert (owner[mine] == -1).all()
+        owner[mine] = p
+    assert (owner >= 0).all()                                   # every vertex exactly once
+    rank = {p: r for r, p in enumerate(layout.colour_parts)}
+    lanes = np.arange(layout.tets.shape[0] * BLOCK).reshape(-1, BLOCK)
+    for p in range(layout.part_offsets.shape[0] - 1):
+        for b in range(layout.part_offsets[p], layout.part_offsets[p + 1]):
+            used = layout.tets[b][:, lanes[b] < len(tets)].ravel()
+            assert all(rank[owner[i]] <= rank[p] for i in used)
+    assert owner[-1] == layout.colour_parts[0]
+
+
+@pytest.mark.parametrize("precision", ["float64", "float32"])
+def test_moving_vertices_inside_the_parts_gives_the_bits_of_a_separate_vertex_loop(precision, monkeypatch):
+    """Without a ground the colour scatter moves each part's vertices at the start of its next
+    step; with a ground (here far below: no contact) a separate vertex loop moves them all after
+    each step.  Same arithmetic, same order: the same bits, on 1 and 2 threads, over several calls,
+    with damping and a driven face."""
+    from softsim import simulation
+    from softsim.config import parse_scene
+    from softsim.model import initial_state
+
+    monkeypatch.setattr(simulation, "step_threads", lambda tets, available: available)
+    base = {"mesh": {"shape": "box", "size": [1.0, 0.25, 0.25], "element_size": 0.05, "structured": True},
+            "material": {"model": "stvk", "youngs_modulus": 1e6, "poissons_ratio": 0.3, "density": 1000.0},
+            "fixed": [{"min": [-1e-6, -1, -1], "max": [1e-6, 1, 1]},
+                      {"min": [1 - 1e-6, -1, -1], "max": [2, 1, 1], "axes": ["y"], "velocity": [0, 0.5, 0]}],
+            "damping": 3.0, "precision": precision, "time": {"duration": 1.0}}
+    results = {}
+    for threads in (1, 2):
+        numba_threads = numba.get_num_threads()
+        numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+        try:
+            for name, extra in (("in parts", {}), ("vertex loop", {"ground": {"height": -100.0}})):
+                prepared = simulation.prepare(parse_scene({**base, **extra}))
+                model = prepared.model
+                assert model.blocks.colour_count == 2
+                state = initial_state(prepared.scene, model)
+                work = simulation.work_buffer(model)
+                for count in (7, 1, 12):
+                    simulation.step(model, state, prepared.plan.dt, count, prepared.scene.damping, work)
+                results[threads, name] = (state.x.copy(), state.v.copy())
+        finally:
+            numba.set_num_threads(numba_threads)
+    x, v = results[1, "vertex loop"]
+    assert np.abs(x - prepared.model.rest_points).max() > 1e-3
+    for key, (x_k, v_k) in results.items():
+        assert x_k.tobytes() == x.tobytes() and v_k.tobytes() == v.tobytes(), key

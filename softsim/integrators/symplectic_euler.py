@@ -135,13 +135,29 @@ def update_vertex(x, rest, v, i, fx, fy, fz, dt, t_next, inv_mass, external_acce
 
 
 @njit
+def update_from_forces(x, rest, v, vertex_forces, i, dt, t_next, inv_mass, external_accel, held, held_start,
+                       held_velocity, ground, damping_factor):
+    """``update_vertex`` with vertex ``i``'s summed force from ``vertex_forces``, which it zeroes."""
+    fx = vertex_forces[i, 0]
+    fy = vertex_forces[i, 1]
+    fz = vertex_forces[i, 2]
+    vertex_forces[i, 0] = 0.0
+    vertex_forces[i, 1] = 0.0
+    vertex_forces[i, 2] = 0.0
+    update_vertex(x, rest, v, i, fx, fy, fz, dt, t_next, inv_mass, external_accel, held, held_start,
+                  held_velocity, ground, damping_factor)
+
+
+@njit
 def block_range_forces(x, rest, blocks, first, stop, model, lam, mu, scatter, vertex_forces, corner_forces):
     """Forces of blocks ``first`` to ``stop - 1``, in order (in the precision of ``blocks``' rest data).
 
     scatter: add them to ``vertex_forces`` (node_count, 3) (no other thread may be writing the
     vertices of these blocks); else store them per (tet, corner) into ``corner_forces`` (tet_count, 4, 3).
     """
-    block_tets, block_rest, tet_count, _, _ = blocks
+    block_tets = blocks[0]
+    block_rest = blocks[1]
+    tet_count = blocks[2]
     buf = np.empty(ROWS * BLOCK, dtype=block_rest.dtype)
     for b in range(first, stop):
         block_forces(x, block_tets, block_rest, b, model, lam, mu, buf, rest)
@@ -162,12 +178,16 @@ def advance(x, rest, v, step_start, step_count, dt,
     rest: None; or, in float32, the rest positions (n, 3) [m], ``x`` then holding displacements
     from them (and ``held_start`` too).  Every array and scalar is in the precision of ``x``.
     step_start: index of the first step (time ``step_start * dt`` [s]); dt [s].
-    blocks: ``(block_tets, block_rest, tet_count, part_offsets, colour_parts)`` of a
-    ``kernels.blocked.BlockLayout``; colour_offsets: (colours + 1,) into colour_parts; model id, Lame
-    lam, mu [Pa].
+    blocks: ``(block_tets, block_rest, tet_count, part_offsets, colour_parts, owned_offsets, owned)``
+    of a ``kernels.blocked.BlockLayout``; colour_offsets: (colours + 1,) into colour_parts; model
+    id, Lame lam, mu [Pa].
     scatter True: the forces are added into ``vertex_forces`` (node_count, 3), one colour of parts
     at a time, its parts in parallel; False: stored into ``corner_forces`` (tet_count, 4, 3) and
     gathered per vertex through the vertex -> (tet, corner) map ``offsets`` (n+1,), ``slots`` (4m,).
+    Without a ground, the colour scatter moves each part's vertices (``BlockLayout.owned``) at the
+    start of the part's next step, in the same parallel loop, and all of them after the last
+    step: one barrier per colour and step, none for the vertex update.  Each vertex gets the same
+    arithmetic in the same order as in a separate vertex loop, so the same bits.
     inv_mass (n,) [1/kg]; external_accel (n, 3) [m/s^2]: gravity plus tractions / mass.
     held (n, 3) bool; held_start, held_velocity (n, 3) [m, m/s]: prescribed motion of held components.
     ground: None, or the tuple ``ground_contact`` takes; damping_factor: None, or exp(-damping dt).
@@ -185,6 +205,25 @@ def advance(x, rest, v, step_start, step_count, dt,
             vertex_forces[i, 0] = 0.0
             vertex_forces[i, 1] = 0.0
             vertex_forces[i, 2] = 0.0
+    if scatter and ground is None:
+        owned_offsets = blocks[5]
+        owned = blocks[6]
+        for step in range(step_start, step_start + step_count):
+            for colour in range(colour_offsets.shape[0] - 1):
+                for k in prange(colour_offsets[colour], colour_offsets[colour + 1]):
+                    part = colour_parts[k]
+                    if step > step_start:         # the previous step's update of this part's vertices
+                        for s in range(owned_offsets[part], owned_offsets[part + 1]):
+                            update_from_forces(x, rest, v, vertex_forces, owned[s], dt, step * dt, inv_mass,
+                                               external_accel, held, held_start, held_velocity, ground,
+                                               damping_factor)
+                    block_range_forces(x, rest, blocks, part_offsets[part], part_offsets[part + 1],
+                                       model, lam, mu, scatter, vertex_forces, corner_forces)
+        if step_count > 0:
+            for i in prange(node_count):
+                update_from_forces(x, rest, v, vertex_forces, i, dt, (step_start + step_count) * dt, inv_mass,
+                                   external_accel, held, held_start, held_velocity, ground, damping_factor)
+        return
     for step in range(step_start, step_start + step_count):
         t_next = (step + 1) * dt
         if scatter:
@@ -200,16 +239,12 @@ def advance(x, rest, v, step_start, step_count, dt,
                                    model, lam, mu, scatter, vertex_forces, corner_forces)
         for i in prange(node_count):
             if scatter:
-                fx = vertex_forces[i, 0]
-                fy = vertex_forces[i, 1]
-                fz = vertex_forces[i, 2]
-                vertex_forces[i, 0] = 0.0
-                vertex_forces[i, 1] = 0.0
-                vertex_forces[i, 2] = 0.0
+                update_from_forces(x, rest, v, vertex_forces, i, dt, t_next, inv_mass, external_accel, held,
+                                   held_start, held_velocity, ground, damping_factor)
             else:
                 fx, fy, fz = gather_vertex_force(corner_forces, offsets, slots, i)
-            update_vertex(x, rest, v, i, fx, fy, fz, dt, t_next, inv_mass, external_accel, held, held_start,
-                          held_velocity, ground, damping_factor)
+                update_vertex(x, rest, v, i, fx, fy, fz, dt, t_next, inv_mass, external_accel, held, held_start,
+                              held_velocity, ground, damping_factor)
         if ground is not None:
             for i in prange(node_count):
                 move_vertex(x, v, i, dt, t_next, held, held_start, held_velocity)
@@ -226,7 +261,8 @@ def step_arguments(model, work):
     needed = 3 * n if layout.scatter == "colour" else 12 * m
     if flat.size < needed:
         raise ValueError(f"work buffer of {flat.size} floats, the {layout.scatter} scatter needs {needed}")
-    blocks = (layout.tets, layout.rest, layout.tet_count, layout.part_offsets, layout.colour_parts)
+    blocks = (layout.tets, layout.rest, layout.tet_count, layout.part_offsets, layout.colour_parts,
+              layout.owned_offsets, layout.owned)
     if layout.scatter == "colour":
         vertex_forces = flat[:3 * n].reshape(n, 3)
         corner_forces = np.empty((0, 4, 3), dtype=flat.dtype)

@@ -97,7 +97,9 @@ class BlockLayout:
     tets (block_count, 4, BLOCK) uint32; rest (block_count, GROUPS, 10, GROUP) [1/m, m^3]; tet_count: real
     tets (the last block is padded); part_offsets (part_count + 1,): part p is blocks
     ``part_offsets[p]`` to ``part_offsets[p + 1] - 1``; colour_offsets (colours + 1,), colour_parts
-    (part_count,): parts grouped by colour; scatter: ``"colour"`` or ``"csr"``.
+    (part_count,): parts grouped by colour; owned_offsets (part_count + 1,), owned (node_count,)
+    int64: the vertices part p moves, ``owned[owned_offsets[p]:owned_offsets[p + 1]]`` (see
+    ``vertex_owners``); scatter: ``"colour"`` or ``"csr"``.
     """
 
     tets: np.ndarray
@@ -106,6 +108,8 @@ class BlockLayout:
     part_offsets: np.ndarray
     colour_offsets: np.ndarray
     colour_parts: np.ndarray
+    owned_offsets: np.ndarray
+    owned: np.ndarray
     scatter: str
 
     @property
@@ -120,10 +124,12 @@ def build_block_layout(tets, Dm_inv, rest_volume, node_count, scatter=None, slab
     block_tets, block_rest = block_layout(tets, Dm_inv, rest_volume, dtype)
     part_offsets = slab_parts(block_tets, node_count, slabs)
     colour_offsets, colour_parts = part_colouring(block_tets, tets.shape[0], node_count, part_offsets)
+    owned_offsets, owned = vertex_owners(block_tets, tets.shape[0], node_count, part_offsets, colour_parts)
     if scatter is None:
         scatter = "colour"
     return BlockLayout(tets=block_tets, rest=block_rest, tet_count=int(tets.shape[0]), part_offsets=part_offsets,
-                       colour_offsets=colour_offsets, colour_parts=colour_parts, scatter=scatter)
+                       colour_offsets=colour_offsets, colour_parts=colour_parts, owned_offsets=owned_offsets,
+                       owned=owned, scatter=scatter)
 
 
 def slab_parts(block_tets, node_count, slabs=SLABS):
@@ -189,6 +195,33 @@ def part_colouring(block_tets, tet_count, node_count, part_offsets):
     colour_offsets = np.zeros(int(colour.max(initial=-1)) + 2, dtype=np.int64)
     np.cumsum(np.bincount(colour), out=colour_offsets[1:])
     return colour_offsets, colour_parts
+
+
+def vertex_owners(block_tets, tet_count, node_count, part_offsets, colour_parts):
+    """``(owned_offsets, owned)``: each vertex goes to the first part, in colour order
+    (``colour_parts``), whose tets use it; a vertex no tet uses to the first part.  Part p owns
+    ``owned[owned_offsets[p]:owned_offsets[p + 1]]``, in increasing order.
+
+    The step moves a part's vertices just before it computes the part's forces of the next step
+    (``integrators.symplectic_euler.advance``): by then every force on them has been added, and no
+    part of an earlier colour, nor another part of the same colour, reads them in that step.
+    """
+    block_count = block_tets.shape[0]
+    part_count = part_offsets.shape[0] - 1
+    order = np.empty(part_count, dtype=np.int64)
+    order[colour_parts] = np.arange(part_count)          # position of each part in colour order
+    lanes = np.arange(block_count * BLOCK).reshape(block_count, 1, BLOCK)
+    real = np.broadcast_to(lanes < tet_count, block_tets.shape)
+    block_part = np.repeat(np.arange(part_count), np.diff(part_offsets))
+    rank = np.broadcast_to(order[block_part][:, None, None], block_tets.shape)[real]
+    first = np.full(node_count, part_count, dtype=np.int64)
+    np.minimum.at(first, block_tets[real].astype(np.int64), rank)
+    first[first == part_count] = 0                       # used by no tet: the first part in colour order
+    owner = colour_parts[first] if part_count else first
+    owned = np.argsort(owner, kind="stable").astype(np.int64)
+    owned_offsets = np.zeros(part_count + 1, dtype=np.int64)
+    np.cumsum(np.bincount(owner, minlength=part_count), out=owned_offsets[1:])
+    return owned_offsets, owned
 
 
 @njit
