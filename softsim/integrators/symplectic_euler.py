@@ -30,10 +30,10 @@ from ..kernels.jit import njit, njit_parallel
 
 
 # Tets per thread of the step: fewer threads for a smaller mesh, one below 2 x this.  Each step
-# passes three thread barriers (two colours, the vertex update), tens of microseconds each with
-# passive waits; on the beam, 2 threads against 1 (M tet-steps/s, medians of 7 interleaved
-# rounds): 11.9 / 51.3 at 2k tets, 34.8 / 44.4 at 10k, 51.0 / 53.0 at 20k, 58.2 / 52.3 at 40k.
-TETS_PER_THREAD = 20_000
+# passes a thread barrier per colour (two), tens of microseconds each with passive waits; on the
+# beam, 1 / 2 threads (M tet-steps/s, medians of 7 interleaved rounds): 59.6 / 48.8 at 10k tets,
+# 46.5 / 53.9 at 20k, 51.3 / 62.9 at 28k, 58.2 / 72.9 at 42k.
+TETS_PER_THREAD = 10_000
 
 
 def step_threads(tet_count, available):
