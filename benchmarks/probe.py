@@ -3,7 +3,7 @@
     python -m benchmarks.probe memory TETS      peak RSS of preparing and stepping a beam, with a breakdown
     python -m benchmarks.probe startup TETS     seconds from process start to the first step done
     python -m benchmarks.probe layer TETS SECONDS   M tet-steps/s of the beam on this process's threading layer
-    python -m benchmarks.probe asm              double-precision arithmetic instructions of each model's lane loop,
+    python -m benchmarks.probe asm              floating-point arithmetic instructions of each lane loop (float64, float32),
                                                 by vector width (run with an empty NUMBA_CACHE_DIR: Numba
                                                 shows no machine code for cached functions)
 """
@@ -55,7 +55,7 @@ def memory(tets):
     touched += ["state (x, v, held_start)", "work buffer", "inv_mass", "external_accel", "held", "held_velocity"]
     if model.blocks.scatter == "csr":
         touched += ["csr_offsets", "csr_slots"]
-    if model.ground_arguments() is not None:
+    if model.has_ground:
         touched += ["boundary_faces", "face_offsets", "face_slots"]
     return dict(tets=model.tet_count, baseline_rss=baseline, peak_after_prepare=after_prepare,
                 peak_rss=_peak_rss(), arrays=arrays, step_arrays=sum(arrays[name] for name in touched),
@@ -92,18 +92,20 @@ def asm():
 
     from softsim.kernels import blocked
 
-    buf = np.zeros(blocked.ROWS * blocked.BLOCK)
-    rest = np.full((blocked.GROUPS, blocked.REST_ROWS, blocked.GROUP), 0.1)
+    loops = [(name, f"{name}_block", np.float64) for name in ("linear", "stvk", "corotated", "neohookean")]
+    loops += [(f"{name} float32", f"{name}_displacement_block", np.float32) for name in ("linear", "stvk", "neohookean")]
     out = {}
-    for name in ("linear", "stvk", "corotated", "neohookean"):
-        fn = getattr(blocked, f"{name}_block")
-        fn(rest, buf, 1.0, 1.0)
+    for name, function, dtype in loops:
+        buf = np.zeros(blocked.ROWS * blocked.BLOCK, dtype=dtype)
+        rest = np.full((blocked.GROUPS, blocked.REST_ROWS, blocked.GROUP), 0.1, dtype=dtype)
+        fn = getattr(blocked, function)
+        fn(rest, buf, dtype(1.0), dtype(1.0))
         code = "\n".join(fn.inspect_asm().values())
         counts = {}
-        for m in re.finditer(r"^\s+(v(?:fn?m(?:add|sub)\w*|mul|add|sub|div|sqrt)(?:pd|sd|\d*pd|\d*sd))\s+([^\n]*)", code, re.M):
+        for m in re.finditer(r"^\s+(v(?:fn?m(?:add|sub)\w*|mul|add|sub|div|sqrt)\d*(?:pd|sd|ps|ss))\s+([^\n]*)", code, re.M):
             op, operands = m.group(1), m.group(2)
             width = "zmm" if "zmm" in operands else "ymm" if "ymm" in operands else "xmm"
-            kind = "scalar" if op.endswith("sd") else f"packed {width}"
+            kind = "scalar" if op.endswith(("sd", "ss")) else f"packed {width}"
             key = f"{'fma' if 'fm' in op else 'arith'} {kind}"
             counts[key] = counts.get(key, 0) + 1
         out[name] = counts

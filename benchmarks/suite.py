@@ -285,18 +285,19 @@ def simd():
         text = ", ".join(f"{v} {k}" for k, v in sorted(counts.items(), key=lambda kv: -kv[1]))
         log(f"  {name}: {text}")
         rows.append(row("simd", f"{name} lane loop", runner="softsim", ratio=packed / max(total, 1),
-                        ratio_to="packed share of float64 arithmetic", note=text + SIMD_NOTE))
+                        ratio_to="packed share of arithmetic", note=text + SIMD_NOTE))
     return rows
 
 
-PRECISION_MODELS = ("linear", "stvk", "neohookean")      # the models with a float32 step
 
 
 def precision(target, large, seconds, repeats, threads):
     """float32 against float64: each model with a float32 step on the beam of ``target`` tets, StVK
     also at ``large`` tets; with the difference of the positions after ``CHECK_STEPS`` steps."""
     rows = []
-    for size, names in ((target, PRECISION_MODELS), (large, ("stvk",))):
+    from softsim.config.schema import FLOAT32_MODELS
+
+    for size, names in ((target, FLOAT32_MODELS), (large, ("stvk",))):
         for name in names:
             runners = {p: Softsim(prepared_beam(size, name, precision=p)) for p in ("float64", "float32")}
             for sim in runners.values():

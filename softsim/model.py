@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .kernels.blocked import build_block_layout
+from .kernels.blocked import build_block_layout, faces_by_part
 from .kernels.rest_state import lumped_masses, rest_state, vertex_tet_csr
 from .materials.models import MODEL_IDS, model_lame_parameters
 from .mesh import TetMesh
@@ -67,7 +67,9 @@ class Model:
     ground_height: float
     ground_friction: float
     blocks: object = None     # kernels.blocked.BlockLayout: the tets in blocks for the vectorised step
-    precision: str = "float64"    # of the step (its blocks and state); the model's own arrays are float64
+    part_face_offsets: np.ndarray = None   # boundary faces by part of the block layout (kernels.blocked.faces_by_part)
+    part_faces: np.ndarray = None
+    precision: str = "float64"    # of the step (its blocks; the state stays float64); the model's arrays are float64
 
     @property
     def has_ground(self):
@@ -79,11 +81,12 @@ class Model:
         return (self.ground_stiffness or 0.0) * self.boundary_area
 
     def ground_arguments(self):
-        """``None`` without a ground, else the tuple ``integrators.symplectic_euler.ground_contact`` takes."""
+        """``(ground, ground_faces)`` of ``integrators.symplectic_euler.advance``: ``(None, None)``
+        without a ground (with a new zeroed array for the vertices' downward face areas)."""
         if not self.has_ground:
-            return None
-        return (self.ground_height, self.ground_stiffness, self.ground_friction,
-                self.boundary_faces, self.face_offsets, self.face_slots)
+            return None, None
+        return ((self.ground_height, self.ground_stiffness, self.ground_friction, np.zeros(self.node_count)),
+                (self.boundary_faces, self.face_offsets, self.face_slots, self.part_face_offsets, self.part_faces))
 
     @property
     def node_count(self):
@@ -137,7 +140,7 @@ def build_model(scene, mesh):
     lam, mu = model_lame_parameters(material.model, material.youngs_modulus, material.poissons_ratio)
     offsets, slots = vertex_tet_csr(tets, n)
 
-    faces = boundary_faces(tets, mesh.source)
+    faces, face_tets = boundary_faces(tets, mesh.source, with_tets=True)
     areas = face_areas(points, faces)
     boundary_area = np.zeros(n)
     np.add.at(boundary_area, faces.ravel(), np.repeat(areas / 3.0, 3))
@@ -167,6 +170,8 @@ def build_model(scene, mesh):
     external_accel = gravity[None, :] + traction_force * inv_mass[:, None]
 
     ground = scene.ground
+    blocks = build_block_layout(tets, Dm_inv, rest_volume, n, dtype=np.dtype(scene.precision))
+    part_face_offsets, part_faces = faces_by_part(faces, face_tets, blocks.part_offsets)
     return Model(
         mesh=mesh, vertex_order=vertex_order, tet_order=tet_order, rest_points=points, tets=tets, Dm_inv=Dm_inv,
         rest_volume=rest_volume, mass=mass, inv_mass=inv_mass, material_id=MODEL_IDS[material.model],
@@ -177,7 +182,7 @@ def build_model(scene, mesh):
         ground_stiffness=float(ground.stiffness) if ground is not None else None,
         ground_height=float(ground.height) if ground is not None else 0.0,
         ground_friction=float(ground.friction) if ground is not None else 0.0,
-        blocks=build_block_layout(tets, Dm_inv, rest_volume, n, dtype=np.dtype(scene.precision)),
+        blocks=blocks, part_face_offsets=part_face_offsets, part_faces=part_faces,
         precision=scene.precision,
     )
 

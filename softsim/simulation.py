@@ -31,6 +31,9 @@ log = logging.getLogger("softsim")
 
 # dt: exact uses this fraction of the eigenvalue limit 2 / sqrt(lambda_max(M^-1 K)) at rest.
 EXACT_SAFETY = 0.9
+# float32 runs warn when a step damps velocities by less than this fraction of themselves (float32
+# spacing 6e-8: the damping rate is then off by more than 1 %).
+FLOAT32_DAMPING_FLOOR = 6e-6
 
 
 @dataclass(frozen=True)
@@ -133,6 +136,11 @@ def prepare(scene, mesh=None):
     wave_speed = dilatational_wave_speed(material.youngs_modulus, material.poissons_ratio, material.density)
     dt_estimate = stable_dt_estimate(model)
     dt, safe_dt, substeps = choose_dt(scene, model, dt_estimate)
+    loss = scene.damping * dt
+    if scene.precision == "float32" and 0.0 < loss < FLOAT32_DAMPING_FLOOR:
+        log.warning("precision: float32 with damping %g: a step damps velocities by %.2g of themselves, and "
+                    "float32 resolves about 6e-8, so the damping rate may be off by up to %.0f %%; use float64",
+                    scene.damping, loss, 100 * 6e-8 / loss)
     if scene.time.dt in ("auto", "exact"):
         plan = plan_time(scene.time.duration, scene.output.frame_interval, max_dt=dt)
     else:
@@ -177,7 +185,6 @@ def step(model, state, dt, step_count, damping, work):
         x, rest, v, held_start = work.u, work.rest, work.v, work.held_start
         inv_mass, external_accel, held_velocity = work.inv_mass, work.external_accel, work.held_velocity
         dt, lam, mu = np.float32(dt), np.float32(model.lam), np.float32(model.mu)
-        damping_factor = None if damping_factor is None else np.float32(damping_factor)
         forces = work.forces
     else:
         x, rest, v, held_start = state.x, None, state.v, state.held_start
@@ -192,7 +199,7 @@ def step(model, state, dt, step_count, damping, work):
         advance(x, rest, v, state.step, step_count, dt,
                 blocks, colour_offsets, scatter, model.material_id, lam, mu, offsets, slots,
                 vertex_forces, corner, inv_mass, external_accel, model.held, held_start, held_velocity,
-                model.ground_arguments(), damping_factor, threads)
+                *model.ground_arguments(), damping_factor, threads)
     finally:
         numba.set_num_threads(available)
     if model.precision == "float32":

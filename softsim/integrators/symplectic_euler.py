@@ -26,7 +26,7 @@ from numba import prange
 
 from ..kernels.blocked import BLOCK, ROWS, block_forces, scatter_block, store_block_corners
 from ..kernels.forces import gather_vertex_force
-from ..kernels.jit import njit, njit_parallel
+from ..kernels.jit import njit, njit_inline, njit_parallel
 
 
 # Tets per thread of the step: fewer threads for a smaller mesh, one below 2 x this.  Each step
@@ -41,7 +41,7 @@ def step_threads(tet_count, available):
     return max(1, min(available, tet_count // TETS_PER_THREAD))
 
 
-@njit
+@njit_inline
 def position(x, rest, i, k):
     """Component ``k`` of vertex ``i``'s position [m]: ``x[i, k]``, or ``rest[i, k] + x[i, k]`` when
     ``x`` holds displacements from ``rest``."""
@@ -51,41 +51,56 @@ def position(x, rest, i, k):
 
 
 @njit
-def downward_area(x, rest, faces, face_offsets, face_slots, i):
-    """Area [m^2] of vertex ``i``'s share of its boundary faces, projected on the ground and facing it.
+def face_area_z(x, rest, faces, f):
+    """A third of the z component [m^2] of boundary face ``f``'s current area vector
+    ``1/2 (x1 - x0) x (x2 - x0)`` (outward): each corner's share."""
+    a = faces[f, 0]
+    b = faces[f, 1]
+    c = faces[f, 2]
+    ux = position(x, rest, b, 0) - position(x, rest, a, 0)
+    uy = position(x, rest, b, 1) - position(x, rest, a, 1)
+    wx = position(x, rest, c, 0) - position(x, rest, a, 0)
+    wy = position(x, rest, c, 1) - position(x, rest, a, 1)
+    return (ux * wy - uy * wx) / 6.0
 
-    A third of each adjacent face's current area vector ``1/2 (x1 - x0) x (x2 - x0)`` (outward);
-    only the part pointing down (-z) counts, so side faces add nothing and a flat bottom face gives
-    exactly its area.
-    """
+
+@njit
+def vertex_area_z(x, rest, faces, face_offsets, face_slots, i):
+    """Sum of vertex ``i``'s shares ``face_area_z`` of its boundary faces [m^2]; minus it, where
+    positive, is the vertex's area facing the ground: side faces add nothing and a flat bottom
+    face gives exactly its area."""
     area_z = 0.0
     for k in range(face_offsets[i], face_offsets[i + 1]):
-        f = face_slots[k] // 3
-        a = faces[f, 0]
-        b = faces[f, 1]
-        c = faces[f, 2]
-        ux = position(x, rest, b, 0) - position(x, rest, a, 0)
-        uy = position(x, rest, b, 1) - position(x, rest, a, 1)
-        wx = position(x, rest, c, 0) - position(x, rest, a, 0)
-        wy = position(x, rest, c, 1) - position(x, rest, a, 1)
-        area_z += (ux * wy - uy * wx) / 6.0
-    return max(0.0, -area_z)
+        area_z += face_area_z(x, rest, faces, face_slots[k] // 3)
+    return area_z
+
+
+@njit
+def part_face_areas(x, rest, ground_faces, area_z, part):
+    """Add the ``face_area_z`` of part ``part``'s boundary faces to their corners in ``area_z``."""
+    part_face_offsets, part_faces = ground_faces[3], ground_faces[4]
+    for f in range(part_face_offsets[part], part_face_offsets[part + 1]):
+        share = face_area_z(x, rest, part_faces, f)
+        area_z[part_faces[f, 0]] += share
+        area_z[part_faces[f, 1]] += share
+        area_z[part_faces[f, 2]] += share
 
 
 @njit
 def ground_contact(x, rest, v, i, dt, inv_mass, ground):
     """Apply the ground's penalty force and friction to ``v[i]`` in place.
 
-    ground: ``(height [m], stiffness [Pa/m], friction, faces (b, 3), face_offsets, face_slots)``.
-    The half-space ``z < height`` pushes with pressure ``stiffness * depth`` on the vertex's
-    downward area; friction removes at most ``friction`` times the normal velocity change of
-    tangential speed (it can stop a sliding vertex, never reverse it).
+    ground: ``(height [m], stiffness [Pa/m], friction, area_z (n,))`` (``Model.ground_arguments``);
+    ``area_z[i]``: ``vertex_area_z`` of vertex i at the positions the step's forces saw.  The
+    half-space ``z < height`` pushes with pressure ``stiffness * depth`` on the vertex's downward
+    area; friction removes at most ``friction`` times the normal velocity change of tangential
+    speed (it can stop a sliding vertex, never reverse it).
     """
-    height, stiffness, friction, faces, face_offsets, face_slots = ground
+    height, stiffness, friction = ground[0], ground[1], ground[2]
     depth = height - position(x, rest, i, 2)
     if depth <= 0.0:
         return
-    area = downward_area(x, rest, faces, face_offsets, face_slots, i)
+    area = max(0.0, -ground[3][i])
     dv_normal = dt * stiffness * depth * area * inv_mass[i]
     v[i, 2] += dv_normal
     if friction > 0.0:
@@ -100,7 +115,7 @@ def ground_contact(x, rest, v, i, dt, inv_mass, ground):
             v[i, 1] *= scale
 
 
-@njit
+@njit_inline
 def move_vertex(x, v, i, dt, t_next, held, held_start, held_velocity):
     """``x[i] += dt v[i]``; held components follow ``start + velocity * t_next`` exactly."""
     for k in range(3):
@@ -111,33 +126,31 @@ def move_vertex(x, v, i, dt, t_next, held, held_start, held_velocity):
             x[i, k] += dt * v[i, k]
 
 
-@njit
+@njit_inline
 def update_vertex(x, rest, v, i, fx, fy, fz, dt, t_next, inv_mass, external_accel, held, held_start, held_velocity,
-                  ground, damping_factor):
-    """One step of vertex ``i`` from its elastic force ``(fx, fy, fz)`` [N] (see the module docstring).
-
-    With a ground, ``x`` is not moved here: contact reads neighbours' positions, so the caller moves
-    every vertex in a second pass.
-    """
+                  ground, damping_factor, move):
+    """One step of vertex ``i`` from its elastic force ``(fx, fy, fz)`` [N] (see the module docstring);
+    ``x`` is moved only if ``move`` (else the caller moves it later)."""
     w = inv_mass[i]
     v[i, 0] += dt * (fx * w + external_accel[i, 0])
     v[i, 1] += dt * (fy * w + external_accel[i, 1])
     v[i, 2] += dt * (fz * w + external_accel[i, 2])
     if ground is not None:
-        if position(x, rest, i, 2) < ground[0]:   # below the ground: only then unpack the tuple of arrays
+        if position(x, rest, i, 2) < ground[0]:   # below the ground
             ground_contact(x, rest, v, i, dt, inv_mass, ground)
     if damping_factor is not None:
         v[i, 0] *= damping_factor
         v[i, 1] *= damping_factor
         v[i, 2] *= damping_factor
-    if ground is None:
+    if move:
         move_vertex(x, v, i, dt, t_next, held, held_start, held_velocity)
 
 
-@njit
+@njit_inline
 def update_from_forces(x, rest, v, vertex_forces, i, dt, t_next, inv_mass, external_accel, held, held_start,
                        held_velocity, ground, damping_factor):
-    """``update_vertex`` with vertex ``i``'s summed force from ``vertex_forces``, which it zeroes."""
+    """``update_vertex`` with vertex ``i``'s summed force from ``vertex_forces`` and, with a ground,
+    its summed face area ``ground[3][i]``, which it zeroes; moves ``x[i]``."""
     fx = vertex_forces[i, 0]
     fy = vertex_forces[i, 1]
     fz = vertex_forces[i, 2]
@@ -145,7 +158,9 @@ def update_from_forces(x, rest, v, vertex_forces, i, dt, t_next, inv_mass, exter
     vertex_forces[i, 1] = 0.0
     vertex_forces[i, 2] = 0.0
     update_vertex(x, rest, v, i, fx, fy, fz, dt, t_next, inv_mass, external_accel, held, held_start,
-                  held_velocity, ground, damping_factor)
+                  held_velocity, ground, damping_factor, True)
+    if ground is not None:
+        ground[3][i] = 0.0
 
 
 @njit
@@ -172,7 +187,7 @@ def block_range_forces(x, rest, blocks, first, stop, model, lam, mu, scatter, ve
 def advance(x, rest, v, step_start, step_count, dt,
             blocks, colour_offsets, scatter, model, lam, mu, offsets, slots, vertex_forces, corner_forces,
             inv_mass, external_accel, held, held_start, held_velocity,
-            ground, damping_factor, threads):
+            ground, ground_faces, damping_factor, threads):
     """Advance positions ``x`` and velocities ``v`` (node_count, 3) [m, m/s] in place by ``step_count`` steps.
 
     rest: None; or, in float32, the rest positions (n, 3) [m], ``x`` then holding displacements
@@ -184,13 +199,19 @@ def advance(x, rest, v, step_start, step_count, dt,
     scatter True: the forces are added into ``vertex_forces`` (node_count, 3), one colour of parts
     at a time, its parts in parallel; False: stored into ``corner_forces`` (tet_count, 4, 3) and
     gathered per vertex through the vertex -> (tet, corner) map ``offsets`` (n+1,), ``slots`` (4m,).
-    Without a ground, the colour scatter moves each part's vertices (``BlockLayout.owned``) at the
-    start of the part's next step, in the same parallel loop, and all of them after the last
-    step: one barrier per colour and step, none for the vertex update.  Each vertex gets the same
-    arithmetic in the same order as in a separate vertex loop, so the same bits.
+    The colour scatter moves each part's vertices (``BlockLayout.owned``) at the start of the
+    part's next step, in the same parallel loop, and all of them after the last step: one barrier
+    per colour and step, none for the vertex update.  Each vertex gets the same arithmetic in the
+    same order as in a separate vertex loop, so the same bits.  With a ground, each part also
+    adds its boundary faces' areas to their corners (``part_face_areas``) from the positions its
+    forces see; the contact of the vertex update reads them, not the neighbours' positions.  The
+    csr scatter updates every vertex in a loop of its own after each step (then, with a ground,
+    computes each vertex's face area there and moves the vertices in one more loop).
     inv_mass (n,) [1/kg]; external_accel (n, 3) [m/s^2]: gravity plus tractions / mass.
     held (n, 3) bool; held_start, held_velocity (n, 3) [m, m/s]: prescribed motion of held components.
-    ground: None, or the tuple ``ground_contact`` takes; damping_factor: None, or exp(-damping dt).
+    ground: None, or the tuple ``ground_contact`` takes (small: it reaches every vertex update);
+    ground_faces: None, or ``(faces (b, 3), face_offsets, face_slots, part_face_offsets, part_faces)``
+    (``Model.ground_arguments``); damping_factor: None, or exp(-damping dt).
     threads: ``numba.get_num_threads()``.
 
     Every vertex sums its forces in a fixed order, whatever the thread count: a run gives the same
@@ -201,13 +222,14 @@ def advance(x, rest, v, step_start, step_count, dt,
     part_offsets = blocks[3]
     colour_parts = blocks[4]
     if scatter:
+        owned_offsets = blocks[5]
+        owned = blocks[6]
         for i in prange(node_count):
             vertex_forces[i, 0] = 0.0
             vertex_forces[i, 1] = 0.0
             vertex_forces[i, 2] = 0.0
-    if scatter and ground is None:
-        owned_offsets = blocks[5]
-        owned = blocks[6]
+            if ground is not None:
+                ground[3][i] = 0.0
         for step in range(step_start, step_start + step_count):
             for colour in range(colour_offsets.shape[0] - 1):
                 for k in prange(colour_offsets[colour], colour_offsets[colour + 1]):
@@ -217,6 +239,8 @@ def advance(x, rest, v, step_start, step_count, dt,
                             update_from_forces(x, rest, v, vertex_forces, owned[s], dt, step * dt, inv_mass,
                                                external_accel, held, held_start, held_velocity, ground,
                                                damping_factor)
+                    if ground is not None:
+                        part_face_areas(x, rest, ground_faces, ground[3], part)
                     block_range_forces(x, rest, blocks, part_offsets[part], part_offsets[part + 1],
                                        model, lam, mu, scatter, vertex_forces, corner_forces)
         if step_count > 0:
@@ -224,27 +248,18 @@ def advance(x, rest, v, step_start, step_count, dt,
                 update_from_forces(x, rest, v, vertex_forces, i, dt, (step_start + step_count) * dt, inv_mass,
                                    external_accel, held, held_start, held_velocity, ground, damping_factor)
         return
-    for step in range(step_start, step_start + step_count):
+    for step in range(step_start, step_start + step_count):      # csr
         t_next = (step + 1) * dt
-        if scatter:
-            for colour in range(colour_offsets.shape[0] - 1):
-                for k in prange(colour_offsets[colour], colour_offsets[colour + 1]):
-                    part = colour_parts[k]
-                    block_range_forces(x, rest, blocks, part_offsets[part], part_offsets[part + 1],
-                                       model, lam, mu, scatter, vertex_forces, corner_forces)
-        else:
-            chunks = min(threads, block_count)
-            for chunk in prange(chunks):
-                block_range_forces(x, rest, blocks, chunk * block_count // chunks, (chunk + 1) * block_count // chunks,
-                                   model, lam, mu, scatter, vertex_forces, corner_forces)
+        chunks = min(threads, block_count)
+        for chunk in prange(chunks):
+            block_range_forces(x, rest, blocks, chunk * block_count // chunks, (chunk + 1) * block_count // chunks,
+                               model, lam, mu, scatter, vertex_forces, corner_forces)
         for i in prange(node_count):
-            if scatter:
-                update_from_forces(x, rest, v, vertex_forces, i, dt, t_next, inv_mass, external_accel, held,
-                                   held_start, held_velocity, ground, damping_factor)
-            else:
-                fx, fy, fz = gather_vertex_force(corner_forces, offsets, slots, i)
-                update_vertex(x, rest, v, i, fx, fy, fz, dt, t_next, inv_mass, external_accel, held, held_start,
-                              held_velocity, ground, damping_factor)
+            fx, fy, fz = gather_vertex_force(corner_forces, offsets, slots, i)
+            if ground is not None:
+                ground[3][i] = vertex_area_z(x, rest, ground_faces[0], ground_faces[1], ground_faces[2], i)
+            update_vertex(x, rest, v, i, fx, fy, fz, dt, t_next, inv_mass, external_accel, held, held_start,
+                          held_velocity, ground, damping_factor, ground is None)
         if ground is not None:
             for i in prange(node_count):
                 move_vertex(x, v, i, dt, t_next, held, held_start, held_velocity)
@@ -290,8 +305,11 @@ class SinglePrecisionWork:
     float64 holds 29 more bits, so the round trip returns the same float32 values (only
     displacements below about 1e-9 of the coordinates may move by one float32 unit): splitting a
     run into more calls changes next to nothing, and the same calls give the same bits.
-    rest, inv_mass, external_accel, held_velocity: the model's arrays in float32; forces: the
-    scatter's buffer (``force_buffer``).
+    inv_mass, external_accel, held_velocity: the model's arrays in float32; rest: the rest
+    positions, kept in float64 (only the ground reads them, ``position``: the depth is then exact
+    to float32's spacing of the displacement, not of the coordinate); forces: the scatter's buffer
+    (``force_buffer``).  Velocities are float32 as they are: a step's change of a velocity below
+    6e-8 of it (a weak damping, gravity on a fast body) is lost to its rounding.
     """
 
     def __init__(self, model):
@@ -300,7 +318,7 @@ class SinglePrecisionWork:
         self.v = np.zeros((n, 3), dtype=np.float32)
         self.held_start = np.zeros((n, 3), dtype=np.float32)
         self.forces = force_buffer(model, np.float32)
-        self.rest = model.rest_points.astype(np.float32)
+        self.rest = model.rest_points
         self.inv_mass = model.inv_mass.astype(np.float32)
         self.external_accel = model.external_accel.astype(np.float32)
         self.held_velocity = model.held_velocity.astype(np.float32)

@@ -224,6 +224,18 @@ def vertex_owners(block_tets, tet_count, node_count, part_offsets, colour_parts)
     return owned_offsets, owned
 
 
+def faces_by_part(faces, face_tets, part_offsets):
+    """``(part_face_offsets, part_faces)``: boundary ``faces`` (b, 3) grouped by the part of their
+    tet (``face_tets`` (b,)), part p's ``part_faces[part_face_offsets[p]:part_face_offsets[p + 1]]``.
+    A part uses every vertex of its faces, so it may read and add to them during its colour."""
+    part_count = part_offsets.shape[0] - 1
+    part = np.searchsorted(part_offsets, np.asarray(face_tets) // BLOCK, side="right") - 1
+    order = np.argsort(part, kind="stable")
+    offsets = np.zeros(part_count + 1, dtype=np.int64)
+    np.cumsum(np.bincount(part, minlength=part_count), out=offsets[1:])
+    return offsets, np.ascontiguousarray(faces[order])
+
+
 @njit
 def _greedy_colours(v_offsets, v_units, u_offsets, u_vertices, unit_count):
     """Smallest colour per unit not used by an earlier unit sharing a vertex with it."""

@@ -54,8 +54,9 @@ def oriented_faces(tets):
     return faces, owner
 
 
-def boundary_faces(tets, source="mesh"):
+def boundary_faces(tets, source="mesh", with_tets=False):
     """Outward-wound boundary faces (b, 3) of positively oriented ``tets``; refuses tangled meshes.
+    with_tets: return ``(faces, face_tets)``, face_tets (b,) the tet of each face.
 
     A face is keyed by its sorted vertex triple; its winding parity tells from which side a tet
     sees it.  An interior face must appear exactly twice with opposite parity.
@@ -79,4 +80,5 @@ def boundary_faces(tets, source="mesh"):
         raise MeshError(
             f"{source}: tangled mesh: tetrahedra {tets_of_face} share face {keys[f].tolist()} on the same side of it"
         )
-    return faces[counts[inverse] == 1]
+    boundary = counts[inverse] == 1
+    return (faces[boundary], owner[boundary]) if with_tets else faces[boundary]
