@@ -22,6 +22,15 @@ def _rss_now():
 
 
 def _peak_rss():
+    """This process's peak resident memory [bytes]: ``VmHWM`` (getrusage's ru_maxrss survives
+    exec, so a child of a large process would report its parent's size)."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
 
 

@@ -209,9 +209,7 @@ def _probe(args, env=None):
 
 
 def memory(target, threads):
-    """Peak RSS of a fresh process that prepares and steps the beam, and what holds it.  Measured in
-    a second process: the first may compile (LLVM then holds gigabytes) and leaves the cache warm."""
-    _probe(["memory", target])
+    """Peak RSS of a fresh process that prepares and steps the beam, and what holds it."""
     result = _probe(["memory", target])
     tets = result["tets"]
     rows = [row("memory", "peak RSS", tets, "softsim", threads, ratio=result["peak_rss"] / tets, ratio_to="bytes per tet",
