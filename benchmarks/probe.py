@@ -65,7 +65,7 @@ def memory(tets):
     if model.blocks.scatter == "csr":
         touched += ["csr_offsets", "csr_slots"]
     if model.has_ground:
-        touched += ["boundary_faces", "face_offsets", "face_slots"]
+        touched += ["part_face_offsets", "part_faces"]
     return dict(tets=model.tet_count, baseline_rss=baseline, peak_after_prepare=after_prepare,
                 peak_rss=_peak_rss(), arrays=arrays, step_arrays=sum(arrays[name] for name in touched),
                 step_array_names=touched)

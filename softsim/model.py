@@ -35,7 +35,6 @@ class Model:
     boundary_faces: (b, 3) outward-wound faces; boundary_area: (n,) [m^2] a third of each adjacent face.
     gravity: (3,) [m/s^2]; traction_force: (n, 3) [N] constant; external_accel: (n, 3) = gravity + traction / m.
     held: (n, 3) bool; held_velocity: (n, 3) [m/s]; fixed: (n,) bool, held by the scene's ``fixed`` boxes.
-    face_offsets (n+1,), face_slots (3b,): vertex -> (boundary face, corner) map.
     ground_stiffness [Pa/m] (None without a ground), ground_height [m], ground_friction.
     """
 
@@ -61,8 +60,6 @@ class Model:
     held: np.ndarray
     held_velocity: np.ndarray
     fixed: np.ndarray
-    face_offsets: np.ndarray
-    face_slots: np.ndarray
     ground_stiffness: float | None
     ground_height: float
     ground_friction: float
@@ -86,7 +83,7 @@ class Model:
         if not self.has_ground:
             return None, None
         return ((self.ground_height, self.ground_stiffness, self.ground_friction, np.zeros(self.node_count)),
-                (self.boundary_faces, self.face_offsets, self.face_slots, self.part_face_offsets, self.part_faces))
+                (self.part_face_offsets, self.part_faces))
 
     @property
     def node_count(self):
@@ -144,7 +141,6 @@ def build_model(scene, mesh):
     areas = face_areas(points, faces)
     boundary_area = np.zeros(n)
     np.add.at(boundary_area, faces.ravel(), np.repeat(areas / 3.0, 3))
-    face_offsets, face_slots = vertex_tet_csr(faces, n)
 
     traction_force = np.zeros((n, 3))
     for load in scene.tractions:
@@ -178,7 +174,6 @@ def build_model(scene, mesh):
         lam=float(lam), mu=float(mu), csr_offsets=offsets, csr_slots=slots, boundary_faces=faces,
         boundary_area=boundary_area, gravity=gravity, traction_force=traction_force,
         external_accel=np.ascontiguousarray(external_accel), held=held, held_velocity=held_velocity, fixed=fixed,
-        face_offsets=face_offsets, face_slots=face_slots,
         ground_stiffness=float(ground.stiffness) if ground is not None else None,
         ground_height=float(ground.height) if ground is not None else 0.0,
         ground_friction=float(ground.friction) if ground is not None else 0.0,

@@ -7,6 +7,8 @@ The forces are read from one step with ``dt = 1``, unit inverse masses, no loads
 so that the velocity after the step is the elastic force.
 """
 
+import dataclasses
+
 import numba
 import numpy as np
 import pytest
@@ -195,12 +197,13 @@ def numpy_steps(model, state, dt, steps, damping):
     return x, v
 
 
+@pytest.mark.parametrize("scatter", ["colour", "csr"])
 @pytest.mark.parametrize("ground", [False, True])
-def test_moving_vertices_inside_the_parts_matches_a_numpy_step(ground, monkeypatch):
+def test_moving_vertices_inside_the_parts_matches_a_numpy_step(ground, scatter, monkeypatch):
     """The colour scatter moves each part's vertices at the start of the part's next step (and,
     with a ground, sums the boundary faces' areas per part): over several calls, with damping, a
     driven face and a ground the beam presses into, it follows a plain NumPy step to round-off,
-    with the same bits on 1 and 2 threads."""
+    with the same bits on 1 and 2 threads.  The csr scatter (a vertex loop of its own) too."""
     from softsim import simulation
     from softsim.config import parse_scene
     from softsim.model import initial_state
@@ -216,6 +219,9 @@ def test_moving_vertices_inside_the_parts_matches_a_numpy_step(ground, monkeypat
     prepared = simulation.prepare(parse_scene(scene))
     model = prepared.model
     assert model.blocks.colour_count == 2
+    if scatter == "csr":
+        model = dataclasses.replace(model, blocks=build_block_layout(model.tets, model.Dm_inv, model.rest_volume,
+                                                                     model.node_count, "csr"))
     dt = prepared.plan.dt
     results = []
     for threads in (1, 2):

@@ -65,20 +65,11 @@ def face_area_z(x, rest, faces, f):
 
 
 @njit
-def vertex_area_z(x, rest, faces, face_offsets, face_slots, i):
-    """Sum of vertex ``i``'s shares ``face_area_z`` of its boundary faces [m^2]; minus it, where
-    positive, is the vertex's area facing the ground: side faces add nothing and a flat bottom
-    face gives exactly its area."""
-    area_z = 0.0
-    for k in range(face_offsets[i], face_offsets[i + 1]):
-        area_z += face_area_z(x, rest, faces, face_slots[k] // 3)
-    return area_z
-
-
-@njit
 def part_face_areas(x, rest, ground_faces, area_z, part):
-    """Add the ``face_area_z`` of part ``part``'s boundary faces to their corners in ``area_z``."""
-    part_face_offsets, part_faces = ground_faces[3], ground_faces[4]
+    """Add the ``face_area_z`` of part ``part``'s boundary faces to their corners in ``area_z``.
+    Summed over every face at a vertex, minus it (where positive) is the vertex's area facing the
+    ground: side faces add nothing and a flat bottom face gives exactly its area."""
+    part_face_offsets, part_faces = ground_faces
     for f in range(part_face_offsets[part], part_face_offsets[part + 1]):
         share = face_area_z(x, rest, part_faces, f)
         area_z[part_faces[f, 0]] += share
@@ -91,7 +82,7 @@ def ground_contact(x, rest, v, i, dt, inv_mass, ground):
     """Apply the ground's penalty force and friction to ``v[i]`` in place.
 
     ground: ``(height [m], stiffness [Pa/m], friction, area_z (n,))`` (``Model.ground_arguments``);
-    ``area_z[i]``: ``vertex_area_z`` of vertex i at the positions the step's forces saw.  The
+    ``area_z[i]``: vertex i's ``part_face_areas`` at the positions the step's forces saw.  The
     half-space ``z < height`` pushes with pressure ``stiffness * depth`` on the vertex's downward
     area; friction removes at most ``friction`` times the normal velocity change of tangential
     speed (it can stop a sliding vertex, never reverse it).
@@ -128,9 +119,9 @@ def move_vertex(x, v, i, dt, t_next, held, held_start, held_velocity):
 
 @njit_inline
 def update_vertex(x, rest, v, i, fx, fy, fz, dt, t_next, inv_mass, external_accel, held, held_start, held_velocity,
-                  ground, damping_factor, move):
+                  ground, damping_factor):
     """One step of vertex ``i`` from its elastic force ``(fx, fy, fz)`` [N] (see the module docstring);
-    ``x`` is moved only if ``move`` (else the caller moves it later)."""
+    with a ground, zeroes the vertex's summed face area for the next step."""
     w = inv_mass[i]
     v[i, 0] += dt * (fx * w + external_accel[i, 0])
     v[i, 1] += dt * (fy * w + external_accel[i, 1])
@@ -142,15 +133,15 @@ def update_vertex(x, rest, v, i, fx, fy, fz, dt, t_next, inv_mass, external_acce
         v[i, 0] *= damping_factor
         v[i, 1] *= damping_factor
         v[i, 2] *= damping_factor
-    if move:
-        move_vertex(x, v, i, dt, t_next, held, held_start, held_velocity)
+    move_vertex(x, v, i, dt, t_next, held, held_start, held_velocity)
+    if ground is not None:
+        ground[3][i] = 0.0
 
 
 @njit_inline
 def update_from_forces(x, rest, v, vertex_forces, i, dt, t_next, inv_mass, external_accel, held, held_start,
                        held_velocity, ground, damping_factor):
-    """``update_vertex`` with vertex ``i``'s summed force from ``vertex_forces`` and, with a ground,
-    its summed face area ``ground[3][i]``, which it zeroes; moves ``x[i]``."""
+    """``update_vertex`` with vertex ``i``'s summed force from ``vertex_forces``, which it zeroes."""
     fx = vertex_forces[i, 0]
     fy = vertex_forces[i, 1]
     fz = vertex_forces[i, 2]
@@ -158,9 +149,7 @@ def update_from_forces(x, rest, v, vertex_forces, i, dt, t_next, inv_mass, exter
     vertex_forces[i, 1] = 0.0
     vertex_forces[i, 2] = 0.0
     update_vertex(x, rest, v, i, fx, fy, fz, dt, t_next, inv_mass, external_accel, held, held_start,
-                  held_velocity, ground, damping_factor, True)
-    if ground is not None:
-        ground[3][i] = 0.0
+                  held_velocity, ground, damping_factor)
 
 
 @njit
@@ -205,13 +194,13 @@ def advance(x, rest, v, step_start, step_count, dt,
     same order as in a separate vertex loop, so the same bits.  With a ground, each part also
     adds its boundary faces' areas to their corners (``part_face_areas``) from the positions its
     forces see; the contact of the vertex update reads them, not the neighbours' positions.  The
-    csr scatter updates every vertex in a loop of its own after each step (then, with a ground,
-    computes each vertex's face area there and moves the vertices in one more loop).
+    csr scatter updates every vertex in a loop of its own after each step, with a ground after
+    summing every part's face areas in one thread.
     inv_mass (n,) [1/kg]; external_accel (n, 3) [m/s^2]: gravity plus tractions / mass.
     held (n, 3) bool; held_start, held_velocity (n, 3) [m, m/s]: prescribed motion of held components.
     ground: None, or the tuple ``ground_contact`` takes (small: it reaches every vertex update);
-    ground_faces: None, or ``(faces (b, 3), face_offsets, face_slots, part_face_offsets, part_faces)``
-    (``Model.ground_arguments``); damping_factor: None, or exp(-damping dt).
+    ground_faces: None, or ``(part_face_offsets, part_faces)`` (``Model.ground_arguments``);
+    damping_factor: None, or exp(-damping dt).
     threads: ``numba.get_num_threads()``.
 
     Every vertex sums its forces in a fixed order, whatever the thread count: a run gives the same
@@ -254,15 +243,13 @@ def advance(x, rest, v, step_start, step_count, dt,
         for chunk in prange(chunks):
             block_range_forces(x, rest, blocks, chunk * block_count // chunks, (chunk + 1) * block_count // chunks,
                                model, lam, mu, scatter, vertex_forces, corner_forces)
+        if ground is not None:
+            for part in range(part_offsets.shape[0] - 1):     # boundary faces only: one thread
+                part_face_areas(x, rest, ground_faces, ground[3], part)
         for i in prange(node_count):
             fx, fy, fz = gather_vertex_force(corner_forces, offsets, slots, i)
-            if ground is not None:
-                ground[3][i] = vertex_area_z(x, rest, ground_faces[0], ground_faces[1], ground_faces[2], i)
             update_vertex(x, rest, v, i, fx, fy, fz, dt, t_next, inv_mass, external_accel, held, held_start,
-                          held_velocity, ground, damping_factor, ground is None)
-        if ground is not None:
-            for i in prange(node_count):
-                move_vertex(x, v, i, dt, t_next, held, held_start, held_velocity)
+                          held_velocity, ground, damping_factor)
 
 
 def step_arguments(model, work):
