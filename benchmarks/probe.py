@@ -8,6 +8,7 @@
                                                 shows no machine code for cached functions)
 """
 
+import dataclasses
 import json
 import resource
 import sys
@@ -34,9 +35,6 @@ def _peak_rss():
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
 
 
-BLOCK_ARRAYS = ("tets", "rest", "part_offsets", "colour_offsets", "colour_parts", "owned_offsets", "owned")
-
-
 def memory(tets):
     import numpy as np
 
@@ -52,7 +50,9 @@ def memory(tets):
     for name, value in vars(model).items():
         if isinstance(value, np.ndarray):
             arrays[name] = value.nbytes
-    for name in BLOCK_ARRAYS:
+    block_arrays = [f.name for f in dataclasses.fields(model.blocks)
+                    if isinstance(getattr(model.blocks, f.name), np.ndarray)]
+    for name in block_arrays:
         arrays[f"blocks.{name}"] = getattr(model.blocks, name).nbytes
     arrays["state (x, v, held_start)"] = 3 * sim.state.x.nbytes
     arrays["work buffer"] = sim.work.nbytes
@@ -60,7 +60,7 @@ def memory(tets):
     arrays["mesh (user order)"] = mesh.points.nbytes + mesh.tets.nbytes
     # What one step reads or writes: the block layout, the scatter's arrays, the state, the
     # per-vertex constants (and the ground's faces when there is a ground).
-    touched = [f"blocks.{name}" for name in BLOCK_ARRAYS]
+    touched = [f"blocks.{name}" for name in block_arrays]
     touched += ["state (x, v, held_start)", "work buffer", "inv_mass", "external_accel", "held", "held_velocity"]
     if model.blocks.scatter == "csr":
         touched += ["csr_offsets", "csr_slots"]

@@ -31,9 +31,10 @@ log = logging.getLogger("softsim")
 
 # dt: exact uses this fraction of the eigenvalue limit 2 / sqrt(lambda_max(M^-1 K)) at rest.
 EXACT_SAFETY = 0.9
-# float32 runs warn when a step damps velocities by less than this fraction of themselves (float32
-# spacing 6e-8: the damping rate is then off by more than 1 %).
-FLOAT32_DAMPING_FLOOR = 6e-6
+# float32's spacing relative to a value (half an ulp); float32 runs warn when a step damps
+# velocities by less than FLOAT32_DAMPING_FLOOR of themselves (the damping rate then off by > 1 %).
+FLOAT32_SPACING = float(np.finfo(np.float32).eps) / 2.0
+FLOAT32_DAMPING_FLOOR = 100.0 * FLOAT32_SPACING
 
 
 @dataclass(frozen=True)
@@ -139,8 +140,8 @@ def prepare(scene, mesh=None):
     loss = scene.damping * dt
     if scene.precision == "float32" and 0.0 < loss < FLOAT32_DAMPING_FLOOR:
         log.warning("precision: float32 with damping %g: a step damps velocities by %.2g of themselves, and "
-                    "float32 resolves about 6e-8, so the damping rate may be off by up to %.0f %%; use float64",
-                    scene.damping, loss, 100 * 6e-8 / loss)
+                    "float32 resolves about %.0e, so the damping rate may be off by up to %.0f %%; use float64",
+                    scene.damping, loss, FLOAT32_SPACING, 100 * FLOAT32_SPACING / loss)
     if scene.time.dt in ("auto", "exact"):
         plan = plan_time(scene.time.duration, scene.output.frame_interval, max_dt=dt)
     else:

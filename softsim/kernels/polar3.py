@@ -47,7 +47,7 @@ from .mat3 import mat3_add_scaled_inline, mat3_cofactor_inline, mat3_ddot_inline
 # numpy.linalg.svd, times the conditioning (s1 + s2) / s0, is 1e10-1e11 eps after 3 sweeps and
 # 40-450 eps (rounding, the same as with 5 or 8 sweeps and as the earlier allocating SVD's 30-270)
 # after 4.
-JACOBI_SWEEPS = 4
+JACOBI_SWEEPS = 4          # documents the code: the sweeps are written out (jacobi_eigenvectors)
 
 # Newton's polar iteration from X = F: this many steps (written out in newton_polar_rotation).
 # Measured share of F = Q (I + a G) (Q a random rotation, G standard normal) that fails the
@@ -58,7 +58,7 @@ JACOBI_SWEEPS = 4
 #     7 steps    0        0        2e-4     2e-2
 # Where it passes, R is within 1e-14 of numpy.linalg.svd's.  A step costs about a tenth of the
 # Jacobi fallback; 6 steps keep that fallback rare at strains up to about 0.2.
-NEWTON_ITERATIONS = 6
+NEWTON_ITERATIONS = 6      # documents the code: the steps are written out (newton_polar_rotation)
 # Largest last Newton step (Frobenius norm of X_k - X_k-1) accepted as converged: the error left in
 # R is about half its square, 5e-15.
 NEWTON_STEP_TOLERANCE = 1e-7
@@ -246,7 +246,7 @@ def newton_polar_rotation(F):
     Y, _ = newton_polar_step(Y, 3)
     Y, _ = newton_polar_step(Y, 4)
     Z, _ = newton_polar_step(Y, 5)                # Z = 2^6 R, Y = 2^5 X_5
-    q = 1.0 / 2.0 ** NEWTON_ITERATIONS
+    q = 1.0 / 64.0                                  # 2^-6: the six steps written out above
     D = mat3_add_scaled_inline(Z, Y, -2.0)          # 2^6 (X_6 - X_5)
     step = q * q * mat3_ddot_inline(D, D)
     R = mat3_scale_inline(Z, q)

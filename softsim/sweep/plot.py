@@ -6,7 +6,7 @@ import csv
 import math
 from pathlib import Path
 
-from ..errors import ConfigError, MissingDependencyError
+from ..errors import PLOT_EXTRA, ConfigError, MissingDependencyError
 from .metrics import UNITS
 
 
@@ -27,14 +27,14 @@ def plot_summary(summary_path, image_path, x, y="tip_displacement", lines=None, 
 
     Only complete runs are drawn; failed ones are counted in the legend.  An axis whose values
     are all positive and span a factor of 3 or more is logarithmic (a power law is a straight
-    line).  Needs matplotlib (``pip install 'softsim[plot]'``).  Returns ``image_path``.
+    line).  Needs matplotlib (``PLOT_EXTRA``).  Returns ``image_path``.
     """
     try:
         import matplotlib
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
     except ImportError:
-        raise MissingDependencyError("the sweep plot needs matplotlib: pip install 'softsim[plot]'") from None
+        raise MissingDependencyError(f"the sweep plot needs matplotlib: {PLOT_EXTRA}") from None
     rows = read_summary(summary_path)
     if not rows:
         raise ConfigError(f"{summary_path}: the summary has no runs")

@@ -28,9 +28,6 @@ from . import references as ref
 from .driver import Run, face_mask, tet_deformation_gradients, unique_edges
 
 MODELS = tuple(MODEL_IDS)
-# Relative change per 1/omega below which a float32 run counts as at rest: float32 round-off keeps
-# the last bits of a relaxed state moving (about 1e-7 relative).
-FLOAT32_REST_TOLERANCE = 1e-6
 # Half-width [m] of the selection boxes around a face.
 BOX = 1e-6
 @dataclass(frozen=True)
@@ -363,8 +360,7 @@ def run_traction(p=Traction(), quick=False, models=MODELS, mutate=None, progress
             def elongation():
                 return float((run.state.x[end, 0] - X[end, 0]).mean())
 
-            tolerance = max(p.rest_tolerance, FLOAT32_REST_TOLERANCE) if precision == "float32" else p.rest_tolerance
-            value, converged = run.relax(elongation, 1.0 / omega, tolerance, max_time=100.0 / omega,
+            value, converged = run.relax(elongation, 1.0 / omega, p.rest_tolerance, max_time=100.0 / omega,
                                          min_time=5.0 / omega)
             contraction = float(-(run.state.x[side, 1] - X[side, 1]).mean())
             note = "at rest" if converged else f"NOT at rest after {run.time * omega:.0f}/omega_1"

@@ -24,6 +24,11 @@ from ..model import State, initial_state
 from ..simulation import prepare, stable_dt_estimate, step
 
 
+# Relative change per chunk below which a float32 run counts as at rest: float32 round-off keeps
+# the last bits of a relaxed state moving (about 1e-7 relative).
+FLOAT32_REST_TOLERANCE = 1e-6
+
+
 class Run:
     """A prepared verification scene and its state, advanced in timed chunks.
 
@@ -88,11 +93,14 @@ class Run:
 
     def relax(self, measure, interval, rel_tol, max_time, min_time=0.0):
         """Advance in chunks of ``interval`` [s] until ``measure()`` changes by less than ``rel_tol``
-        of its size over one chunk (after ``min_time``), or until ``max_time`` [s].
+        of its size over one chunk (after ``min_time``), or until ``max_time`` [s].  A float32 run
+        uses at least ``FLOAT32_REST_TOLERANCE``.
 
         Returns ``(value, converged)``.  With damping ``2 omega`` for the slowest mode and
         ``interval = 1 / omega`` the remaining transient is about the last change.
         """
+        if self.scene.precision == "float32":
+            rel_tol = max(rel_tol, FLOAT32_REST_TOLERANCE)
         chunk = self.steps_for(interval)
         previous = measure()
         while self.time < max_time:
