@@ -26,14 +26,16 @@ from numba import prange
 
 from ..kernels.blocked import BLOCK, ROWS, block_forces, scatter_block, store_block_corners
 from ..kernels.forces import gather_vertex_force
-from ..kernels.jit import njit, njit_inline, njit_parallel
+from ..kernels.jit import TBB_LAYER, njit, njit_inline, njit_parallel
 
 
 # Tets per thread of the step: fewer threads for a smaller mesh, one below 2 x this.  Each step
-# passes a thread barrier per colour (two), tens of microseconds each with passive waits; on the
-# beam, 1 / 2 threads (M tet-steps/s, medians of 7 interleaved rounds): 59.6 / 48.8 at 10k tets,
-# 46.5 / 53.9 at 20k, 51.3 / 62.9 at 28k, 58.2 / 72.9 at 42k.
-TETS_PER_THREAD = 10_000
+# passes two parallel regions (one per colour), about 1 us each on TBB, tens of microseconds on a
+# passive OpenMP (``kernels.jit``); on the beam, 1 / 2 threads (M tet-steps/s, medians of 5 timings,
+# two alternating processes each): TBB 26 / 16 at 300 tets, 37 / 18-28 at 600, 46-49 / 29-55 at
+# 1k, 56 / 64-80 at 2.5k, 58 / 90 at 5k, 60 / 86-108 at 10k; passive OpenMP 59.6 / 48.8 at 10k,
+# 46.5 / 53.9 at 20k, 51.3 / 62.9 at 28k.
+TETS_PER_THREAD = 1_000 if TBB_LAYER else 10_000
 
 
 def step_threads(tet_count, available):

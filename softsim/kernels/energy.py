@@ -1,37 +1,66 @@
-"""Energies of a state [J], reduced in parallel; evaluated once per frame, never per step."""
+"""Energies of a state [J], reduced in parallel; evaluated once per frame, never per step.
+
+Each sum is cut into ``CHUNKS`` fixed ranges, summed in parallel, then added in order: the same
+bits on any thread count and under any scheduling.  (A ``prange`` reduction adds per-thread
+partial sums, and TBB hands the chunks of a loop to whichever thread is free: its totals changed
+in the last bits from call to call.)
+"""
 
 import numpy as np
 from numba import prange
 
 from ..materials.models import energy_density
 from .deformation import deformation_gradient, edge_matrix
-from .jit import njit_parallel
+from .jit import njit, njit_parallel
 from .mat3 import mat3_load
+
+CHUNKS = 64
 
 
 @njit_parallel
 def elastic_energy(x, tets, Dm_inv, rest_volume, model, lam, mu):
     """``sum_e V0_e Psi(F_e)`` [J] for positions ``x`` (node_count, 3) [m]."""
-    total = 0.0
-    for e in prange(tets.shape[0]):
-        F = deformation_gradient(edge_matrix(x, tets, e), mat3_load(Dm_inv, e))
-        total += rest_volume[e] * energy_density(model, F, lam, mu)
-    return total
+    m = tets.shape[0]
+    partial = np.zeros(CHUNKS)
+    for c in prange(CHUNKS):
+        total = 0.0
+        for e in range(c * m // CHUNKS, (c + 1) * m // CHUNKS):
+            F = deformation_gradient(edge_matrix(x, tets, e), mat3_load(Dm_inv, e))
+            total += rest_volume[e] * energy_density(model, F, lam, mu)
+        partial[c] = total
+    return ordered_sum(partial)
 
 
 @njit_parallel
 def kinetic_energy(v, mass):
     """``1/2 sum m |v|^2`` [J]; v (node_count, 3) [m/s], mass (node_count,) [kg]."""
-    total = 0.0
-    for i in prange(v.shape[0]):
-        total += 0.5 * mass[i] * (v[i, 0] ** 2 + v[i, 1] ** 2 + v[i, 2] ** 2)
-    return total
+    n = v.shape[0]
+    partial = np.zeros(CHUNKS)
+    for c in prange(CHUNKS):
+        total = 0.0
+        for i in range(c * n // CHUNKS, (c + 1) * n // CHUNKS):
+            total += 0.5 * mass[i] * (v[i, 0] ** 2 + v[i, 1] ** 2 + v[i, 2] ** 2)
+        partial[c] = total
+    return ordered_sum(partial)
 
 
 @njit_parallel
 def gravity_energy(x, mass, gravity):
     """Potential energy ``-sum m g . x`` [J] in the uniform field ``gravity`` (3,) [m/s^2]."""
+    n = x.shape[0]
+    partial = np.zeros(CHUNKS)
+    for c in prange(CHUNKS):
+        total = 0.0
+        for i in range(c * n // CHUNKS, (c + 1) * n // CHUNKS):
+            total -= mass[i] * (gravity[0] * x[i, 0] + gravity[1] * x[i, 1] + gravity[2] * x[i, 2])
+        partial[c] = total
+    return ordered_sum(partial)
+
+
+@njit
+def ordered_sum(values):
+    """``values[0] + values[1] + ...``, left to right."""
     total = 0.0
-    for i in prange(x.shape[0]):
-        total -= mass[i] * (gravity[0] * x[i, 0] + gravity[1] * x[i, 1] + gravity[2] * x[i, 2])
+    for k in range(values.shape[0]):
+        total += values[k]
     return total

@@ -11,24 +11,61 @@ material law of ``materials/models.py``).  Each cache entry is therefore also st
 of the sources of the jitted packages: editing any of them recompiles instead of running stale code.
 """
 
+import ctypes
 import hashlib
+import importlib.metadata
 import os
 
 import numba
 
 JIT_OPTIONS = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
 
-# Threading layer, chosen by measurement (benchmarks/throughput.py at 100k tets, 2 threads, medians
-# of 5, M tet-steps/s; quiet machine / one core held by another process):
-#   GNU OpenMP, spinning (its default)   83 / 25
-#   GNU OpenMP, OMP_WAIT_POLICY=passive  58 / 44
-#   workqueue                            37 / 32
-# A spinning barrier collapses when another process holds a core; a passive one does not, and
-# still beats workqueue.  libgomp reads the policy when it loads (at the first parallel call), so
-# it is set here; a value already in the environment wins, as does NUMBA_THREADING_LAYER.  Where
-# libgomp is missing, Numba falls back to TBB, then workqueue.
+# Threading layer, chosen by measurement (beam, 2 threads, M tet-steps/s, medians of 5 timings in
+# alternating processes; quiet machine / one core held by another process):
+#                                         10k tets        100k tets
+#   TBB                                   106 / 54        100-114 / 46-47
+#   GNU OpenMP, OMP_WAIT_POLICY=passive    52 / 51         96-100 / 46-55
+#   GNU OpenMP, spinning (its default)     an earlier run at 100k: 83 / 25
+#   workqueue                              an earlier run at 100k: 37 / 32
+# A step passes two parallel regions (one per colour, ``integrators.symplectic_euler``); an empty
+# region costs 1.2 us with TBB or a spinning OpenMP, 47 us with a passive OpenMP, whose threads
+# sleep in the kernel between regions.  A spinning OpenMP collapses when another process holds a
+# core; TBB, which yields while it waits, does not.  TBB comes from pip's ``tbb`` wheel (a
+# dependency); the GNU OpenMP of Numba's wheel is the fallback where it does not load, with
+# passive waits (libgomp reads the policy when it loads, at the first parallel call; a value
+# already in the environment wins, as does NUMBA_THREADING_LAYER).
 os.environ.setdefault("OMP_WAIT_POLICY", "passive")
-numba.config.THREADING_LAYER_PRIORITY = ["omp", "tbb", "workqueue"]
+numba.config.THREADING_LAYER_PRIORITY = ["tbb", "omp", "workqueue"]
+
+# The names of the TBB runtime Numba's TBB layer loads (``numba.np.ufunc.parallel``).
+_TBB_LIBRARIES = ("libtbb.so.12", "libtbb.12.dylib", "tbb12.dll")
+
+
+def _preload_tbb():
+    """Load the TBB runtime of pip's ``tbb`` wheel by its path, if it is installed.
+
+    The wheel puts ``libtbb.so.12`` in ``<prefix>/lib``, which the dynamic loader does not search
+    in a virtual environment, so Numba does not find it (numba/numba#9740).  Loaded once by path,
+    it is then found by name.  Without the wheel (or where it fails to load) Numba falls back to
+    the next layer of ``THREADING_LAYER_PRIORITY``.  Returns whether it loaded.
+    """
+    try:
+        files = importlib.metadata.files("tbb") or ()
+    except importlib.metadata.PackageNotFoundError:
+        return False
+    for file in files:
+        if file.name in _TBB_LIBRARIES:
+            try:
+                ctypes.CDLL(str(file.locate()), mode=ctypes.RTLD_GLOBAL)
+            except OSError:
+                return False
+            return True
+    return False
+
+
+# Whether Numba's parallel regions will run on TBB (about 1 us each, not tens): its runtime loaded
+# and no other layer asked for (``integrators.symplectic_euler.TETS_PER_THREAD`` depends on it).
+TBB_LAYER = _preload_tbb() and numba.config.THREADING_LAYER in ("default", "tbb", "safe", "threadsafe")
 
 _PACKAGE_DIR = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
