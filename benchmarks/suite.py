@@ -163,13 +163,13 @@ def features(target, seconds, repeats, threads):
     return rows
 
 
-def overhead(target, frames, threads):
-    """Time outside the kernels in ``simulate`` (guard, energy, output) at a frame interval: the
-    whole run against the time spent inside its ``step`` calls (timed by wrapping ``step``)."""
+def overhead(target, frames, threads, interval=0.001):
+    """Time outside the kernels in ``simulate`` (guard, energy, output) at a frame ``interval`` [s]:
+    the whole run against the time spent inside its ``step`` calls (timed by wrapping ``step``)."""
     from softsim import simulation
 
-    prepared = prepared_beam(target, output={"frame_interval": 0.001, "fields": []},
-                             time={"duration": 0.001 * frames})
+    prepared = prepared_beam(target, output={"frame_interval": interval, "fields": []},
+                             time={"duration": interval * frames})
     steps = prepared.plan.total_steps
     inside = [0.0]
     plain_step = simulation.step
@@ -194,10 +194,11 @@ def overhead(target, frames, threads):
         finally:
             simulation.step = plain_step
     outside = statistics.median(shares)
-    log(f"  {frames} frames of 1 ms, {steps} steps: {outside:.1%} of the run outside the step loop")
-    return [row("overhead", "outside kernels", prepared.model.tet_count, "softsim", threads, statistics.median(rates),
-                outside, "share of wall time", note=f"{frames} frames every 1 ms ({steps // frames} steps each): "
-                                                    f"guard checks, frame writes (HDF5)")]
+    ms = f"{interval * 1e3:g} ms"
+    log(f"  {frames} frames of {ms}, {steps} steps: {outside:.1%} of the run outside the step loop")
+    return [row("overhead", f"outside kernels, frames every {ms}", prepared.model.tet_count, "softsim", threads,
+                statistics.median(rates), outside, "share of wall time",
+                note=f"{frames} frames every {ms} ({steps // frames} steps each): guard checks, frame writes (HDF5)")]
 
 
 def _probe(args, env=None):
