@@ -25,7 +25,7 @@ import math
 import numpy as np
 
 from ..errors import SimulationError
-from ..kernels.element_checks import element_volume_ratios_and_stretches
+from ..kernels.element_checks import block_volume_ratios_and_stretches, element_volume_ratios_and_stretches
 from ..kernels.energy import elastic_energy, gravity_energy, kinetic_energy
 from ..kernels.forces import elastic_forces
 from ..materials.models import INVERSION_SAFE, MODEL_IDS
@@ -111,7 +111,7 @@ class FrameGuard:
         m = self.model
         where = self._where(time, state.step)
         self._check_finite(state, where)
-        element_volume_ratios_and_stretches(state.x, m.tets, m.Dm_inv, self.J, self.stretch)
+        self._measure_elements(state.x)
         if m.material_id not in _INVERSION_SAFE_IDS:
             e = int(np.argmin(self.J))
             if self.J[e] <= 0.0:
@@ -146,6 +146,8 @@ class FrameGuard:
         self.held_power = float(snapshot["guard_held_power"])
 
     def _check_finite(self, state, where):
+        if np.isfinite(state.x).all() and np.isfinite(state.v).all():     # flat: 30x faster than per row
+            return
         bad = ~(np.isfinite(state.x).all(axis=1) & np.isfinite(state.v).all(axis=1))
         if bad.any():
             i = int(np.argmax(bad))
@@ -157,9 +159,17 @@ class FrameGuard:
         if self.policy == "allow":
             return 1
         self._check_finite(state, self._where(time, state.step))
-        m = self.model
-        element_volume_ratios_and_stretches(state.x, m.tets, m.Dm_inv, self.J, self.stretch)
+        self._measure_elements(state.x)
         return self._substeps(state, time)
+
+    def _measure_elements(self, x):
+        """``self.J`` and ``self.stretch`` of every tet at positions ``x``: in the vectorised blocks
+        of the step where their rest data is float64, else tet by tet."""
+        m = self.model
+        if m.blocks.rest.dtype == np.float64:
+            block_volume_ratios_and_stretches(x, m.blocks.tets, m.blocks.rest, m.tet_count, self.J, self.stretch)
+        else:
+            element_volume_ratios_and_stretches(x, m.tets, m.Dm_inv, self.J, self.stretch)
 
     def _substeps(self, state, time):
         """Sub-steps per planned step at the state whose J and stretch ``self`` holds."""

