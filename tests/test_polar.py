@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 
 import naive
-from softsim.kernels.blocked import (BLOCK, FALLBACK_VECTOR_MIN_LANES, GROUP, GROUPS, REST_ROWS, ROW_F, ROW_VOLUME, ROW_X, ROWS,
-                                     corotated_block)
-from softsim.kernels.polar3 import jacobi_polar_rotation, newton_polar_rotation_jit, polar_rotation
+from softsim.kernels.blocked import (BLOCK, FALLBACK_VECTOR_MIN_LANES, GROUP, GROUPS, NEWTON_VECTOR_MIN_LANES, REST_ROWS,
+                                     ROW_F, ROW_VOLUME, ROW_X, ROWS, corotated_block)
+from softsim.kernels.polar3 import jacobi_polar_rotation, newton_polar_rotation_jit, newton_polar_start_jit, polar_rotation
 from softsim.materials.models import corotated_energy_density, corotated_first_piola, model_lame_parameters
 from test_blocked_kernels import Body
 
@@ -210,17 +210,32 @@ def block_of(Fs):
     return rest, buf
 
 
-@pytest.mark.parametrize("fallbacks", [0, 3, FALLBACK_VECTOR_MIN_LANES + 1, BLOCK])
-def test_lane_loop_gives_the_bits_of_the_per_tet_law(fallbacks):
-    """A block with ``fallbacks`` lanes that Newton cannot do (inverted, nearly flat, strongly
-    stretched: the scalar and the packed fallback loops) among near-rest lanes: every lane's
-    forces are exactly -P of ``corotated_first_piola``, whichever path the block took."""
-    rng = np.random.default_rng(303)
+def second_stage_F(rng):
+    """An F that Newton's first four steps do not settle and its last two do (strain ~0.12)."""
+    while True:
+        F = rotation(rng) @ (np.eye(3) + 0.12 * rng.normal(size=(3, 3)))
+        t = tuple(F.ravel())
+        if not newton_polar_start_jit(t)[1] and newton_polar_rotation_jit(t)[1]:
+            return F
+
+
+@pytest.mark.parametrize("second_stage, fallbacks", [
+    (0, 0), (3, 0), (NEWTON_VECTOR_MIN_LANES + 1, 0), (0, 3), (5, 3), (NEWTON_VECTOR_MIN_LANES + 1, 3),
+    (3, FALLBACK_VECTOR_MIN_LANES + 1), (NEWTON_VECTOR_MIN_LANES + 1, FALLBACK_VECTOR_MIN_LANES + 1), (0, BLOCK),
+    (BLOCK, 0)])
+def test_lane_loop_gives_the_bits_of_the_per_tet_law(second_stage, fallbacks):
+    """A block with ``second_stage`` lanes that need Newton's last two steps and ``fallbacks`` lanes
+    that Newton cannot do (inverted, nearly flat, strongly stretched), each through its scalar
+    and its packed loop, among near-rest lanes: every lane's forces are exactly -P of
+    ``corotated_first_piola``, whichever path the block took."""
+    rng = np.random.default_rng(303 + second_stage)
     hard = ("inverted", "nearly flat", "inverted, stretch ratio up to 1e3")
     Fs = np.array([family(hard[j % 3], rng) if j < fallbacks
-                   else rotation(rng) @ (np.eye(3) + 0.05 * rng.normal(size=(3, 3))) for j in range(BLOCK)])
+                   else second_stage_F(rng) if j < fallbacks + second_stage
+                   else rotation(rng) @ (np.eye(3) + 0.02 * rng.normal(size=(3, 3))) for j in range(BLOCK)])
     Fs = Fs[rng.permutation(BLOCK)]
     assert sum(not newton_polar_rotation_jit(tuple(F.ravel()))[1] for F in Fs) == fallbacks
+    assert sum(not newton_polar_start_jit(tuple(F.ravel()))[1] for F in Fs) == fallbacks + second_stage
     rest, buf = block_of(Fs)
     corotated_block(rest, buf, LAM, MU)
     for j in range(BLOCK):

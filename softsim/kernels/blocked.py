@@ -10,7 +10,7 @@ block is one row of ``BLOCK`` lanes (structure of arrays), read from the block's
     buf rows  0..11  corner positions x_c,k     [m]       gathered from ``x``: row 3 c + k
                      (or corner displacements u_c,k = x - X, in the displacement form below)
     buf rows 12..23  corner forces f_c,k        [N]       row 12 + 3 c + k
-    buf row   24     corotated only: the lanes to redo with the Jacobi SVD (see ``corotated_block``)
+    buf rows 24..35  corotated only: the lanes' next stage, Newton's state (see ``corotated_block``)
 
 Row offsets are compile-time constants and every access of the lane loop is ``rest[g, row, l]`` or
 ``buf[row * BLOCK + j]``: LLVM emits packed SIMD code (AVX2 / AVX-512), its one runtime alias check
@@ -57,7 +57,7 @@ from ..materials.models import (
 from ..mesh.reorder import SLABS
 from .jit import njit, njit_inline
 from .mat3 import mat3_ddot_inline, mat3_det_inline, mat3_mul_inline, mat3_mul_transpose_b_inline, mat3_scale_inline
-from .polar3 import jacobi_rotation_and_stretch, newton_polar_rotation
+from .polar3 import jacobi_rotation_and_stretch, newton_polar_finish, newton_polar_start
 
 BLOCK = 64                 # tets per block (a multiple of the SIMD width: 8 doubles in AVX-512)
 GROUP = 16                 # lanes per group of the rest data (the lane loop's trip count)
@@ -67,14 +67,20 @@ ROW_VOLUME = 9
 REST_ROWS = 10
 ROW_X = 0                  # rows of the scratch buffer
 ROW_F = 12
-ROW_FALLBACK = 24          # corotated: 1.0 where Newton's polar iteration did not converge, else 0.0
-ROWS = 25                  # rows of the scratch buffer; ``ROWS * BLOCK`` floats
+ROW_FALLBACK = 24          # corotated: 1.0 where a lane still needs work (the next stage), else 0.0
+ROW_LIST = 25              # corotated: the lanes a scalar pass redoes, listed first
+ROW_NEWTON = 26            # corotated: rows 26..34 ``2^4 X_4`` of Newton's iteration, row 35 det F
+ROWS = 36                  # rows of the scratch buffer; ``ROWS * BLOCK`` floats
 
 # corotated: the Jacobi SVD of the lanes where Newton's polar iteration did not converge runs as
 # a packed SIMD loop over the whole block (costing all 64 lanes) above this many such lanes, and
 # lane by lane in scalar code up to it.  Measured on one block in L1 cache (AVX-512, Zen 4): the
 # scalar code ~370 ns per lane, the packed loop ~55 ns per lane of the block: even at about 9 lanes.
 FALLBACK_VECTOR_MIN_LANES = 9
+# corotated: the last two Newton steps of the lanes the first four did not settle (strains above
+# about 0.05) run packed over the whole block above this many lanes, lane by lane up to it (the
+# packed loop costs all 64 lanes, a scalar lane about 8 packed ones: the SIMD width).
+NEWTON_VECTOR_MIN_LANES = 8
 
 
 # Scatter of the corner forces: ``colour`` adds each block's forces straight into the vertex forces,
@@ -344,21 +350,72 @@ def neohookean_block(rest, buf, lam, mu):
             lane_store_forces(group, l, buf, j, _neohookean_first_piola(lane_deformation_gradient(group, l, buf, j), lam, mu))
 
 
+@njit_inline
+def lane_store_newton(buf, j, Y, det):
+    """Keep lane ``j``'s ``Y = 2^4 X_4`` and det F in rows ``ROW_NEWTON..`` for the second stage."""
+    for k in range(9):
+        buf[(ROW_NEWTON + k) * BLOCK + j] = Y[k]
+    buf[(ROW_NEWTON + 9) * BLOCK + j] = det
+
+
+@njit_inline
+def lane_finish_newton(rest, l, buf, j, lam, mu):
+    """Newton's last two steps for lane ``j`` (lane ``l`` of ``rest``): its forces where they
+    converge, and its fallback flag (1.0: the Jacobi SVD must redo it)."""
+    F = lane_deformation_gradient(rest, l, buf, j)
+    Y = (buf[ROW_NEWTON * BLOCK + j], buf[(ROW_NEWTON + 1) * BLOCK + j], buf[(ROW_NEWTON + 2) * BLOCK + j],
+         buf[(ROW_NEWTON + 3) * BLOCK + j], buf[(ROW_NEWTON + 4) * BLOCK + j], buf[(ROW_NEWTON + 5) * BLOCK + j],
+         buf[(ROW_NEWTON + 6) * BLOCK + j], buf[(ROW_NEWTON + 7) * BLOCK + j], buf[(ROW_NEWTON + 8) * BLOCK + j])
+    R, converged = newton_polar_finish(Y, buf[(ROW_NEWTON + 9) * BLOCK + j])
+    lane_store_forces(rest, l, buf, j, _corotated_stress(F, R, lam, mu))
+    buf[ROW_FALLBACK * BLOCK + j] = 0.0 if converged else 1.0
+
+
+@njit
+def list_flagged_lanes(buf):
+    """List the lanes whose fallback flag is set in row ``ROW_LIST`` (as floats); return their count."""
+    k = 0
+    for j in range(BLOCK):
+        if buf[ROW_FALLBACK * BLOCK + j] != 0.0:
+            buf[ROW_LIST * BLOCK + k] = j
+            k += 1
+    return k
+
+
 @njit
 def corotated_block(rest, buf, lam, mu):
-    """The rotation of each lane by Newton's polar iteration (``polar3.newton_polar_rotation``);
-    the lanes where it did not converge (inverted, nearly flat or strongly stretched tets) are
-    redone with the Jacobi SVD, as ``polar3.polar_rotation`` does per tet, and get the same bits."""
-    fallbacks = 0
+    """The rotation of each lane by Newton's polar iteration in two stages, as
+    ``polar3.newton_polar_rotation`` takes them: four steps for every lane (packed), the last two
+    for the lanes the four did not settle; the lanes where it did not converge (inverted, nearly
+    flat or strongly stretched tets) are redone with the Jacobi SVD, as ``polar3.polar_rotation``
+    does per tet.  Every lane gets the bits of the per-tet law."""
+    pending = 0
     for g in range(GROUPS):
         group = rest[g]
         for l in range(GROUP):
             j = g * GROUP + l
             F = lane_deformation_gradient(group, l, buf, j)
-            R, converged = newton_polar_rotation(F)
+            R, Y, det, converged = newton_polar_start(F)
             lane_store_forces(group, l, buf, j, _corotated_stress(F, R, lam, mu))
+            lane_store_newton(buf, j, Y, det)
             buf[ROW_FALLBACK * BLOCK + j] = 0.0 if converged else 1.0
-            fallbacks += 0 if converged else 1
+            pending += 0 if converged else 1
+    if pending == 0:
+        return
+    if pending > NEWTON_VECTOR_MIN_LANES:
+        for g in range(GROUPS):
+            group = rest[g]
+            for l in range(GROUP):                # packed SIMD over all lanes, stores masked
+                j = g * GROUP + l
+                if buf[ROW_FALLBACK * BLOCK + j] != 0.0:
+                    lane_finish_newton(group, l, buf, j, lam, mu)
+    else:
+        for k in range(list_flagged_lanes(buf)):  # scalar, one listed lane at a time
+            j = int(buf[ROW_LIST * BLOCK + k])
+            lane_finish_newton(rest[j // GROUP], j % GROUP, buf, j, lam, mu)
+    fallbacks = 0
+    for j in range(BLOCK):
+        fallbacks += 0 if buf[ROW_FALLBACK * BLOCK + j] == 0.0 else 1
     if fallbacks > FALLBACK_VECTOR_MIN_LANES:
         # The two fallback loops repeat their three-line body: moved into an njit_inline helper,
         # this loop compiled to scalar code (903 -> 1805 scalar instructions, inspect_asm).
@@ -371,13 +428,8 @@ def corotated_block(rest, buf, lam, mu):
                     R, _, _, _ = jacobi_rotation_and_stretch(F)
                     lane_store_forces(group, l, buf, j, _corotated_stress(F, R, lam, mu))
     elif fallbacks > 0:
-        k = 0
-        for j in range(BLOCK):                    # the lanes to redo, listed first in the fallback row
-            if buf[ROW_FALLBACK * BLOCK + j] != 0.0:
-                buf[ROW_FALLBACK * BLOCK + k] = j
-                k += 1
-        for k in range(fallbacks):                # scalar, one listed lane at a time
-            j = int(buf[ROW_FALLBACK * BLOCK + k])
+        for k in range(list_flagged_lanes(buf)):  # scalar, one listed lane at a time
+            j = int(buf[ROW_LIST * BLOCK + k])
             group = rest[j // GROUP]
             F = lane_deformation_gradient(group, j % GROUP, buf, j)
             R, _, _, _ = jacobi_rotation_and_stretch(F)

@@ -20,13 +20,16 @@ import numba
 
 JIT_OPTIONS = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
 
-# Threading layer, chosen by measurement (beam, 2 threads, M tet-steps/s, medians of 5 timings in
-# alternating processes; quiet machine / one core held by another process):
+# Threading layer, chosen by measurement (beam, 2 threads, M tet-steps/s, medians of 5 timings per
+# process, processes alternating; quiet machine / one core held by another process, two sessions
+# of runs at 100k):
 #                                         10k tets        100k tets
-#   TBB                                   106 / 54        100-114 / 46-47
-#   GNU OpenMP, OMP_WAIT_POLICY=passive    52 / 51         96-100 / 46-55
+#   TBB                                   106 / 54        100-114 / 46-56
+#   GNU OpenMP, OMP_WAIT_POLICY=passive    52 / 51         96-100 / 46-59
 #   GNU OpenMP, spinning (its default)     an earlier run at 100k: 83 / 25
 #   workqueue                              an earlier run at 100k: 37 / 32
+# (``python -m benchmarks``, layers section, 100k quiet: TBB 117.8, passive OpenMP 101.4,
+# workqueue 78.2.)
 # A step passes two parallel regions (one per colour, ``integrators.symplectic_euler``); an empty
 # region costs 1.2 us with TBB or a spinning OpenMP, 47 us with a passive OpenMP, whose threads
 # sleep in the kernel between regions.  A spinning OpenMP collapses when another process holds a
