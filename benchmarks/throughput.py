@@ -54,12 +54,13 @@ def main():
     parser.add_argument("--tet-steps", type=float, default=2e7, help="work per timed repeat (tets x steps)")
     parser.add_argument("--repeats", type=int, default=5)
     args = parser.parse_args()
-    print(f"threads: {numba.get_num_threads()}, threading layer: {numba.config.THREADING_LAYER}, model: {args.model}")
+    print(f"threads: {numba.get_num_threads()}, model: {args.model}")
     for target in args.tets:
         steps = max(1, int(args.tet_steps / target))
         tets, rates = throughput(target, args.model, steps, args.repeats)
         print(f"{tets:>9} tets x {steps:>5} steps: median {statistics.median(rates):6.2f} M tet-steps/s "
               f"(min {min(rates):.2f}, max {max(rates):.2f}, {args.repeats} repeats)")
+    print(f"threading layer: {numba.threading_layer()}")
 
 
 if __name__ == "__main__":

@@ -24,6 +24,7 @@ from .integrators.timestep import (AUTO_EIGEN_ITERATIONS, AUTO_EIGEN_MIN_STEPS, 
 from .io.hdf5 import RunWriter, check_writable, frames_written, free_bytes, read_resume_state
 from .kernels.energy import elastic_energy, gravity_energy, kinetic_energy
 from .kernels.fields import tet_fields
+from .kernels.jit import threading_layer
 from .mesh import build_mesh
 from .model import State, build_model, initial_state
 
@@ -194,7 +195,7 @@ def step(model, state, dt, step_count, damping, work):
         forces = work
     blocks, colour_offsets, scatter, offsets, slots, vertex_forces, corner = step_arguments(model, forces)
     available = numba.get_num_threads()
-    threads = step_threads(model.tet_count, available)
+    threads = step_threads(model.tet_count, available, threading_layer())
     numba.set_num_threads(threads)
     try:
         advance(x, rest, v, state.step, step_count, dt,

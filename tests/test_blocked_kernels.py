@@ -131,8 +131,9 @@ def test_blocked_forces_are_bitwise_deterministic_on_any_thread_count(scatter):
 
 
 def test_small_meshes_step_on_fewer_threads():
-    """A thread per ``TETS_PER_THREAD`` tets, at least one, at most those available."""
-    from softsim.integrators.symplectic_euler import TETS_PER_THREAD, step_threads
+    """A thread per ``TETS_PER_THREAD`` tets on TBB (per ``TETS_PER_THREAD_OTHER_LAYERS`` on other
+    threading layers), at least one, at most those available."""
+    from softsim.integrators.symplectic_euler import TETS_PER_THREAD, TETS_PER_THREAD_OTHER_LAYERS, step_threads
 
     assert step_threads(0, 2) == 1
     assert step_threads(2 * TETS_PER_THREAD - 1, 2) == 1
@@ -140,6 +141,8 @@ def test_small_meshes_step_on_fewer_threads():
     assert step_threads(10 ** 7, 2) == 2
     assert step_threads(10 ** 7, 16) == 16
     assert step_threads(5 * TETS_PER_THREAD, 16) == 5
+    assert step_threads(2 * TETS_PER_THREAD, 2, "omp") == 1            # tens of microseconds a region
+    assert step_threads(2 * TETS_PER_THREAD_OTHER_LAYERS, 2, "workqueue") == 2
 
 
 def test_each_vertex_is_moved_by_the_first_part_in_colour_order_that_uses_it():
@@ -208,7 +211,7 @@ def test_moving_vertices_inside_the_parts_matches_a_numpy_step(ground, scatter, 
     from softsim.config import parse_scene
     from softsim.model import initial_state
 
-    monkeypatch.setattr(simulation, "step_threads", lambda tets, available: available)
+    monkeypatch.setattr(simulation, "step_threads", lambda tets, available, layer: available)
     scene = {"mesh": {"shape": "box", "size": [1.0, 0.25, 0.25], "element_size": 0.05, "structured": True},
              "material": {"model": "stvk", "youngs_modulus": 1e6, "poissons_ratio": 0.3, "density": 1000.0},
              "fixed": [{"min": [-1e-6, -1, -1], "max": [1e-6, 1, 1]},
@@ -247,8 +250,8 @@ def test_moving_vertices_inside_the_parts_matches_a_numpy_step(ground, scatter, 
 
 def test_the_blocked_element_checks_match_naive_volume_ratios_and_stretches():
     """The guard's J = det F and RMS stretch |F| / sqrt(3), computed in the step's vectorised
-    blocks, equal NumPy's per tet to round-off (a mesh whose tet count is no multiple of the block
-    size, some tets inverted), and tet by tet equal the per-tet kernel's."""
+    blocks, match NumPy's per tet to round-off (a mesh whose tet count is no multiple of the block
+    size, some tets inverted), and the per-tet kernel's."""
     from softsim.kernels.element_checks import block_volume_ratios_and_stretches, element_volume_ratios_and_stretches
 
     points, tets, x = mesh((7, 5, 3))

@@ -26,7 +26,7 @@ from numba import prange
 
 from ..kernels.blocked import BLOCK, ROWS, block_forces, scatter_block, store_block_corners
 from ..kernels.forces import gather_vertex_force
-from ..kernels.jit import TBB_LAYER, njit, njit_inline, njit_parallel
+from ..kernels.jit import njit, njit_inline, njit_parallel
 
 
 # Tets per thread of the step: fewer threads for a smaller mesh, one below 2 x this.  Each step
@@ -35,12 +35,15 @@ from ..kernels.jit import TBB_LAYER, njit, njit_inline, njit_parallel
 # two alternating processes each): TBB 26 / 16 at 300 tets, 37 / 18-28 at 600, 46-49 / 29-55 at
 # 1k, 56 / 64-80 at 2.5k, 58 / 90 at 5k, 60 / 86-108 at 10k; passive OpenMP 59.6 / 48.8 at 10k,
 # 46.5 / 53.9 at 20k, 51.3 / 62.9 at 28k.
-TETS_PER_THREAD = 1_000 if TBB_LAYER else 10_000
+TETS_PER_THREAD = 1_000              # on TBB
+TETS_PER_THREAD_OTHER_LAYERS = 10_000
 
 
-def step_threads(tet_count, available):
-    """Threads the step of a mesh of ``tet_count`` tets runs on, of ``available``."""
-    return max(1, min(available, tet_count // TETS_PER_THREAD))
+def step_threads(tet_count, available, layer="tbb"):
+    """Threads the step of a mesh of ``tet_count`` tets runs on, of ``available``, on the Numba
+    threading ``layer`` (``kernels.jit.threading_layer``)."""
+    per_thread = TETS_PER_THREAD if layer == "tbb" else TETS_PER_THREAD_OTHER_LAYERS
+    return max(1, min(available, tet_count // per_thread))
 
 
 @njit_inline

@@ -10,6 +10,7 @@ block is one row of ``BLOCK`` lanes (structure of arrays), read from the block's
     buf rows  0..11  corner positions x_c,k     [m]       gathered from ``x``: row 3 c + k
                      (or corner displacements u_c,k = x - X, in the displacement form below)
     buf rows 12..23  corner forces f_c,k        [N]       row 12 + 3 c + k
+                     (the guard's element checks: J and the stretch in rows 12 and 13)
     buf rows 24..35  corotated only: the lanes' next stage, Newton's state (see ``corotated_block``)
 
 Row offsets are compile-time constants and every access of the lane loop is ``rest[g, row, l]`` or
@@ -67,10 +68,15 @@ ROW_VOLUME = 9
 REST_ROWS = 10
 ROW_X = 0                  # rows of the scratch buffer
 ROW_F = 12
-ROW_FALLBACK = 24          # corotated: 1.0 where a lane still needs work (the next stage), else 0.0
+ROW_J = ROW_F              # the guard's element checks: J = det F
+ROW_STRETCH = ROW_F + 1    # and the RMS stretch |F| / sqrt(3)
+ROW_STAGE = 24             # corotated: what a lane still needs: STAGE_DONE, STAGE_NEWTON or STAGE_JACOBI
 ROW_LIST = 25              # corotated: the lanes a scalar pass redoes, listed first
 ROW_NEWTON = 26            # corotated: rows 26..34 ``2^4 X_4`` of Newton's iteration, row 35 det F
 ROWS = 36                  # rows of the scratch buffer; ``ROWS * BLOCK`` floats
+STAGE_DONE = 0.0           # corotated, row ROW_STAGE: forces stored
+STAGE_NEWTON = 1.0         # Newton's last two steps to take (det F > 0, the first four did not settle)
+STAGE_JACOBI = 2.0         # the Jacobi SVD to take (det F <= 0, or Newton did not converge)
 
 # corotated: the Jacobi SVD of the lanes where Newton's polar iteration did not converge runs as
 # a packed SIMD loop over the whole block (costing all 64 lanes) above this many such lanes, and
@@ -361,22 +367,22 @@ def lane_store_newton(buf, j, Y, det):
 @njit_inline
 def lane_finish_newton(rest, l, buf, j, lam, mu):
     """Newton's last two steps for lane ``j`` (lane ``l`` of ``rest``): its forces where they
-    converge, and its fallback flag (1.0: the Jacobi SVD must redo it)."""
+    converge (``STAGE_DONE``), else ``STAGE_JACOBI``."""
     F = lane_deformation_gradient(rest, l, buf, j)
     Y = (buf[ROW_NEWTON * BLOCK + j], buf[(ROW_NEWTON + 1) * BLOCK + j], buf[(ROW_NEWTON + 2) * BLOCK + j],
          buf[(ROW_NEWTON + 3) * BLOCK + j], buf[(ROW_NEWTON + 4) * BLOCK + j], buf[(ROW_NEWTON + 5) * BLOCK + j],
          buf[(ROW_NEWTON + 6) * BLOCK + j], buf[(ROW_NEWTON + 7) * BLOCK + j], buf[(ROW_NEWTON + 8) * BLOCK + j])
     R, converged = newton_polar_finish(Y, buf[(ROW_NEWTON + 9) * BLOCK + j])
     lane_store_forces(rest, l, buf, j, _corotated_stress(F, R, lam, mu))
-    buf[ROW_FALLBACK * BLOCK + j] = 0.0 if converged else 1.0
+    buf[ROW_STAGE * BLOCK + j] = STAGE_DONE if converged else STAGE_JACOBI
 
 
 @njit
-def list_flagged_lanes(buf):
-    """List the lanes whose fallback flag is set in row ``ROW_LIST`` (as floats); return their count."""
+def list_lanes(buf, stage):
+    """List the lanes at ``stage`` (row ``ROW_STAGE``) in row ``ROW_LIST`` (as floats); return their count."""
     k = 0
     for j in range(BLOCK):
-        if buf[ROW_FALLBACK * BLOCK + j] != 0.0:
+        if buf[ROW_STAGE * BLOCK + j] == stage:
             buf[ROW_LIST * BLOCK + k] = j
             k += 1
     return k
@@ -386,9 +392,10 @@ def list_flagged_lanes(buf):
 def corotated_block(rest, buf, lam, mu):
     """The rotation of each lane by Newton's polar iteration in two stages, as
     ``polar3.newton_polar_rotation`` takes them: four steps for every lane (packed), the last two
-    for the lanes the four did not settle; the lanes where it did not converge (inverted, nearly
-    flat or strongly stretched tets) are redone with the Jacobi SVD, as ``polar3.polar_rotation``
-    does per tet.  Every lane gets the bits of the per-tet law."""
+    for the lanes the four did not settle (not for inverted ones: Newton cannot accept them); the
+    lanes where it did not converge (inverted, nearly flat or strongly stretched tets) are redone
+    with the Jacobi SVD, as ``polar3.polar_rotation`` does per tet.  Every lane gets the bits of
+    the per-tet law."""
     pending = 0
     for g in range(GROUPS):
         group = rest[g]
@@ -398,24 +405,28 @@ def corotated_block(rest, buf, lam, mu):
             R, Y, det, converged = newton_polar_start(F)
             lane_store_forces(group, l, buf, j, _corotated_stress(F, R, lam, mu))
             lane_store_newton(buf, j, Y, det)
-            buf[ROW_FALLBACK * BLOCK + j] = 0.0 if converged else 1.0
-            pending += 0 if converged else 1
+            stage = STAGE_DONE if converged else (STAGE_NEWTON if det > 0.0 else STAGE_JACOBI)
+            buf[ROW_STAGE * BLOCK + j] = stage
+            pending += 1 if stage != STAGE_DONE else 0
     if pending == 0:
         return
-    if pending > NEWTON_VECTOR_MIN_LANES:
+    newton = 0
+    for j in range(BLOCK):
+        newton += 1 if buf[ROW_STAGE * BLOCK + j] == STAGE_NEWTON else 0
+    if newton > NEWTON_VECTOR_MIN_LANES:
         for g in range(GROUPS):
             group = rest[g]
             for l in range(GROUP):                # packed SIMD over all lanes, stores masked
                 j = g * GROUP + l
-                if buf[ROW_FALLBACK * BLOCK + j] != 0.0:
+                if buf[ROW_STAGE * BLOCK + j] == STAGE_NEWTON:
                     lane_finish_newton(group, l, buf, j, lam, mu)
-    else:
-        for k in range(list_flagged_lanes(buf)):  # scalar, one listed lane at a time
+    elif newton > 0:
+        for k in range(list_lanes(buf, STAGE_NEWTON)):   # scalar, one listed lane at a time
             j = int(buf[ROW_LIST * BLOCK + k])
             lane_finish_newton(rest[j // GROUP], j % GROUP, buf, j, lam, mu)
     fallbacks = 0
     for j in range(BLOCK):
-        fallbacks += 0 if buf[ROW_FALLBACK * BLOCK + j] == 0.0 else 1
+        fallbacks += 1 if buf[ROW_STAGE * BLOCK + j] == STAGE_JACOBI else 0
     if fallbacks > FALLBACK_VECTOR_MIN_LANES:
         # The two fallback loops repeat their three-line body: moved into an njit_inline helper,
         # this loop compiled to scalar code (903 -> 1805 scalar instructions, inspect_asm).
@@ -423,12 +434,12 @@ def corotated_block(rest, buf, lam, mu):
             group = rest[g]
             for l in range(GROUP):                # packed SIMD over all lanes, stores masked
                 j = g * GROUP + l
-                if buf[ROW_FALLBACK * BLOCK + j] != 0.0:
+                if buf[ROW_STAGE * BLOCK + j] == STAGE_JACOBI:
                     F = lane_deformation_gradient(group, l, buf, j)
                     R, _, _, _ = jacobi_rotation_and_stretch(F)
                     lane_store_forces(group, l, buf, j, _corotated_stress(F, R, lam, mu))
     elif fallbacks > 0:
-        for k in range(list_flagged_lanes(buf)):  # scalar, one listed lane at a time
+        for k in range(list_lanes(buf, STAGE_JACOBI)):   # scalar, one listed lane at a time
             j = int(buf[ROW_LIST * BLOCK + k])
             group = rest[j // GROUP]
             F = lane_deformation_gradient(group, j % GROUP, buf, j)
@@ -475,14 +486,14 @@ def linear_displacement_block(rest, buf, lam, mu):
 @njit
 def volume_ratio_and_stretch_block(rest, buf):
     """``J = det F`` and the RMS stretch ``|F| / sqrt(3)`` of each lane, from the corner positions
-    in ``buf``, into rows ``ROW_F`` and ``ROW_F + 1`` of ``buf`` (the guard's element checks)."""
+    in ``buf``, into rows ``ROW_J`` and ``ROW_STRETCH`` of ``buf`` (the guard's element checks)."""
     for g in range(GROUPS):
         group = rest[g]
         for l in range(GROUP):
             j = g * GROUP + l
             F = lane_deformation_gradient(group, l, buf, j)
-            buf[ROW_F * BLOCK + j] = mat3_det_inline(F)
-            buf[(ROW_F + 1) * BLOCK + j] = math.sqrt(mat3_ddot_inline(F, F) / 3.0)
+            buf[ROW_J * BLOCK + j] = mat3_det_inline(F)
+            buf[ROW_STRETCH * BLOCK + j] = math.sqrt(mat3_ddot_inline(F, F) / 3.0)
 
 
 @njit

@@ -59,16 +59,26 @@ def _preload_tbb():
     for file in files:
         if file.name in _TBB_LIBRARIES:
             try:
-                ctypes.CDLL(str(file.locate()), mode=ctypes.RTLD_GLOBAL)
+                ctypes.CDLL(str(file.locate()))
             except OSError:
                 return False
             return True
     return False
 
 
-# Whether Numba's parallel regions will run on TBB (about 1 us each, not tens): its runtime loaded
-# and no other layer asked for (``integrators.symplectic_euler.TETS_PER_THREAD`` depends on it).
-TBB_LAYER = _preload_tbb() and numba.config.THREADING_LAYER in ("default", "tbb", "safe", "threadsafe")
+_TBB_LOADED = _preload_tbb()
+
+
+def threading_layer():
+    """The Numba threading layer parallel regions run on: ``numba.threading_layer()`` once one has
+    run; before that ``"tbb"`` where its runtime loaded and no other layer was asked for (Numba's
+    first choice then), else ``"other"``."""
+    try:
+        return numba.threading_layer()
+    except ValueError:                    # no parallel region has run yet
+        asked = numba.config.THREADING_LAYER in ("default", "tbb", "safe", "threadsafe")
+        return "tbb" if _TBB_LOADED and asked else "other"
+
 
 _PACKAGE_DIR = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 

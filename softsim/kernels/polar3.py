@@ -1,17 +1,18 @@
 """The rotation of the corotated model for one 3x3 ``F``, on scalars: no arrays, no calls but
-inlined ones (``kernels.mat3``'s ``*_inline``), no data-dependent branches, so that the lane loops
-of ``kernels.blocked`` compile to packed SIMD code.
+inlined ones (``kernels.mat3``'s ``*_inline``), no data-dependent branches within a stage, so that
+the lane loops of ``kernels.blocked`` compile to packed SIMD code.
 
 The rotation is that of the inversion-aware SVD (Irving, Teran & Fedkiw 2004): ``F = U diag(s)
 V^T`` with ``U``, ``V`` proper rotations and a reflection in ``F`` (det F < 0, an inverted element)
 moved into the smallest singular value, so that ``R = U V^T`` has det +1 and maximises
 ``tr(R^T F)`` over SO(3).  Two ways to it:
 
-- ``newton_polar_rotation``: ``NEWTON_ITERATIONS`` steps of Newton's iteration ``X <- (X +
-  X^-T) / 2`` from ``X = F`` (Higham 1986), which converges to the polar factor.  Where det F > 0
-  that is ``R``; the last step's size tells whether it converged.  About 60 flops and one division
-  a step: the fast path, for the tets of a simulation that are neither inverted, nearly flat nor
-  stretched by more than about 3x.
+- ``newton_polar_rotation``: Newton's iteration ``X <- (X + X^-T) / 2`` from ``X = F`` (Higham
+  1986), which converges to the polar factor.  Where det F > 0 that is ``R``; the last step's size
+  tells whether it converged.  ``NEWTON_FIRST_STEPS`` steps (``newton_polar_start``) settle the
+  tets of small strain; the others take two more (``newton_polar_finish``, ``NEWTON_ITERATIONS``
+  in all).  About 60 flops and one division a step: the fast path, for the tets of a simulation
+  that are neither inverted, nearly flat nor stretched by more than about 3x.
 - ``jacobi_rotation_and_stretch``: a Jacobi SVD without arrays or branches (after
   McAdams et al. 2011, "Computing the singular value decomposition of 3x3 matrices with minimal
   branching and elementary floating point operations"):
@@ -304,7 +305,7 @@ def jacobi_polar_rotation(F):
 
 @njit
 def newton_polar_start_jit(F):
-    """``newton_polar_start`` as an ordinary jitted function (for tests): ``(R, converged)``."""
+    """``(R, converged)`` of ``newton_polar_start`` as an ordinary jitted function (for tests)."""
     R, _, _, converged = newton_polar_start(F)
     return R, converged
 
