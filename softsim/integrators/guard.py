@@ -146,7 +146,7 @@ class FrameGuard:
         self.held_power = float(snapshot["guard_held_power"])
 
     def _check_finite(self, state, where):
-        if np.isfinite(state.x).all() and np.isfinite(state.v).all():     # flat: 30x faster than per row
+        if np.isfinite(state.x).all() and np.isfinite(state.v).all():     # flat: 25x faster than per row
             return
         bad = ~(np.isfinite(state.x).all(axis=1) & np.isfinite(state.v).all(axis=1))
         if bad.any():

@@ -36,9 +36,8 @@ Blocks are padded to a whole block: a padding lane repeats the block's first tet
 so it computes finite zero forces and the scatter skips it.
 """
 
-from dataclasses import dataclass
-
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
