@@ -5,6 +5,7 @@ from numba import prange
 
 from .blocked import BLOCK, ROW_J, ROW_STRETCH, gather_corners, volume_ratio_and_stretch_block
 from .deformation import deformation_gradient, edge_matrix
+from .energy import CHUNKS        # fixed ranges of blocks, a scratch buffer each
 from .jit import njit_parallel
 from .mat3 import mat3_ddot, mat3_det, mat3_load
 
@@ -23,12 +24,15 @@ def block_volume_ratios_and_stretches(x, block_tets, block_rest, tet_count, J, s
     """``element_volume_ratios_and_stretches`` over the blocks of a ``kernels.blocked.BlockLayout``
     with float64 rest data (``block_tets``, ``block_rest``, ``tet_count``; its tets in the model's
     order): the corners gathered into a scratch buffer, F, J and the stretch in packed SIMD lanes.
-    At 100k tets, 2 threads: 0.44 ms against 1.3 ms tet by tet (a guard check every 32 steps)."""
-    for b in prange(block_tets.shape[0]):
+    At 100k tets, 2 threads: 0.35-0.41 ms against 0.7-1.3 ms tet by tet (a guard check every 32 steps)."""
+    blocks = block_tets.shape[0]
+    chunks = min(CHUNKS, blocks)
+    for c in prange(chunks):
         buf = np.empty((ROW_STRETCH + 1) * BLOCK)       # the corners, J and the stretch
-        gather_corners(x, block_tets, b, buf)
-        volume_ratio_and_stretch_block(block_rest[b], buf)
-        e0 = b * BLOCK
-        for j in range(min(BLOCK, tet_count - e0)):
-            J[e0 + j] = buf[ROW_J * BLOCK + j]
-            stretch[e0 + j] = buf[ROW_STRETCH * BLOCK + j]
+        for b in range(c * blocks // chunks, (c + 1) * blocks // chunks):
+            gather_corners(x, block_tets, b, buf)
+            volume_ratio_and_stretch_block(block_rest[b], buf)
+            e0 = b * BLOCK
+            for j in range(min(BLOCK, tet_count - e0)):
+                J[e0 + j] = buf[ROW_J * BLOCK + j]
+                stretch[e0 + j] = buf[ROW_STRETCH * BLOCK + j]
