@@ -118,6 +118,39 @@ def asm():
             key = f"{'fma' if 'fm' in op else 'arith'} {kind}"
             counts[key] = counts.get(key, 0) + 1
         out[name] = counts
+    out.update(memory_moves())
+    return out
+
+
+def memory_moves():
+    """The store instructions in the compiled gather and scatter of a block (``kernels.simd``), by
+    register width: the hand-written IR stores vectors (the gather a row of lanes at a time, the
+    scatter a vertex's forces at a time), where plain loops store every value on its own."""
+    import re
+
+    import numpy as np
+
+    from softsim.kernels import blocked
+    from softsim.kernels.simd import FORCE_COLUMNS
+
+    out = {}
+    for dtype in (np.float64, np.float32):
+        x = np.zeros((10, 3), dtype=dtype)
+        tets = np.zeros((1, 4, blocked.BLOCK), dtype=np.uint32)
+        buf = np.zeros(blocked.ROWS * blocked.BLOCK, dtype=dtype)
+        forces = np.zeros((10, FORCE_COLUMNS), dtype=dtype)
+        blocked.gather_corners(x, tets, 0, buf)
+        blocked.scatter_block(tets, 0, blocked.BLOCK, buf, forces)
+        for name, fn in (("gather", blocked.gather_corners), ("scatter", blocked.scatter_block)):
+            signature = next(sig for sig in fn.signatures if np.dtype(dtype).name in str(sig))
+            code = fn.inspect_asm(signature).split("_ZN7cpython")[0]     # not the Python wrapper
+            counts = {}
+            for m in re.finditer(r"^\s+(v?mov\w*)\s+%(\w+), [^\n]*\(", code, re.M):
+                register = m.group(2)
+                kind = "store " + (register[:3] if register[:3] in ("zmm", "ymm") else
+                                   "xmm" if m.group(1) in ("vmovups", "vmovaps", "vmovupd", "vmovapd") else "scalar")
+                counts[kind] = counts.get(kind, 0) + 1
+            out[f"{name} {np.dtype(dtype).name}"] = counts
     return out
 
 

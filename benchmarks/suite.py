@@ -279,10 +279,15 @@ def simd():
         result = _probe(["asm"], {"NUMBA_CACHE_DIR": cache})
     rows = []
     for name, counts in result.items():
-        packed = sum(v for k, v in counts.items() if "packed" in k)
         total = sum(counts.values())
         text = ", ".join(f"{v} {k}" for k, v in sorted(counts.items(), key=lambda kv: -kv[1]))
         log(f"  {name}: {text}")
+        if name.startswith(("gather", "scatter")):       # a block's memory moves (probe.memory_moves)
+            vector = sum(v for k, v in counts.items() if k != "store scalar")
+            rows.append(row("simd", f"{name} stores", runner="softsim", ratio=vector / max(total, 1),
+                            ratio_to="vector share of stores", note=f"{text} instructions in the compiled code"))
+            continue
+        packed = sum(v for k, v in counts.items() if "packed" in k)
         rows.append(row("simd", f"{name} lane loop", runner="softsim", ratio=packed / max(total, 1),
                         ratio_to="packed share of arithmetic", note=text + SIMD_NOTE))
     return rows

@@ -27,6 +27,7 @@ from numba import prange
 from ..kernels.blocked import BLOCK, ROWS, block_forces, scatter_block, store_block_corners
 from ..kernels.forces import gather_vertex_force
 from ..kernels.jit import njit, njit_inline, njit_parallel
+from ..kernels.simd import FORCE_COLUMNS
 
 
 # Tets per thread of the step: fewer threads for a smaller mesh, one below 2 x this.  Each step
@@ -161,7 +162,7 @@ def update_from_forces(x, rest, v, vertex_forces, i, dt, t_next, inv_mass, exter
 def block_range_forces(x, rest, blocks, first, stop, model, lam, mu, scatter, vertex_forces, corner_forces):
     """Forces of blocks ``first`` to ``stop - 1``, in order (in the precision of ``blocks``' rest data).
 
-    scatter: add them to ``vertex_forces`` (node_count, 3) (no other thread may be writing the
+    scatter: add them to ``vertex_forces`` (node_count, 4) (no other thread may be writing the
     vertices of these blocks); else store them per (tet, corner) into ``corner_forces`` (tet_count, 4, 3).
     """
     block_tets = blocks[0]
@@ -190,7 +191,8 @@ def advance(x, rest, v, step_start, step_count, dt,
     blocks: ``(block_tets, block_rest, tet_count, part_offsets, colour_parts, owned_offsets, owned)``
     of a ``kernels.blocked.BlockLayout``; colour_offsets: (colours + 1,) into colour_parts; model
     id, Lame lam, mu [Pa].
-    scatter True: the forces are added into ``vertex_forces`` (node_count, 3), one colour of parts
+    scatter True: the forces are added into ``vertex_forces`` (node_count, 4: x, y, z and a zero,
+    ``kernels.simd.FORCE_COLUMNS``), one colour of parts
     at a time, its parts in parallel; False: stored into ``corner_forces`` (tet_count, 4, 3) and
     gathered per vertex through the vertex -> (tet, corner) map ``offsets`` (n+1,), ``slots`` (4m,).
     The colour scatter moves each part's vertices (``BlockLayout.owned``) at the start of the
@@ -219,9 +221,8 @@ def advance(x, rest, v, step_start, step_count, dt,
         owned_offsets = blocks[5]
         owned = blocks[6]
         for i in prange(node_count):
-            vertex_forces[i, 0] = 0.0
-            vertex_forces[i, 1] = 0.0
-            vertex_forces[i, 2] = 0.0
+            for k in range(FORCE_COLUMNS):
+                vertex_forces[i, k] = 0.0
             if ground is not None:
                 ground[3][i] = 0.0
         for step in range(step_start, step_start + step_count):
@@ -265,17 +266,17 @@ def step_arguments(model, work):
     layout = model.blocks
     n, m = model.node_count, model.tet_count
     flat = work.reshape(-1)
-    needed = 3 * n if layout.scatter == "colour" else 12 * m
+    needed = FORCE_COLUMNS * n if layout.scatter == "colour" else 12 * m
     if flat.size < needed:
         raise ValueError(f"work buffer of {flat.size} floats, the {layout.scatter} scatter needs {needed}")
     blocks = (layout.tets, layout.rest, layout.tet_count, layout.part_offsets, layout.colour_parts,
               layout.owned_offsets, layout.owned)
     if layout.scatter == "colour":
-        vertex_forces = flat[:3 * n].reshape(n, 3)
+        vertex_forces = flat[:FORCE_COLUMNS * n].reshape(n, FORCE_COLUMNS)
         corner_forces = np.empty((0, 4, 3), dtype=flat.dtype)
         scatter = True
     else:
-        vertex_forces = np.empty((0, 3), dtype=flat.dtype)
+        vertex_forces = np.empty((0, FORCE_COLUMNS), dtype=flat.dtype)
         corner_forces = flat[:12 * m].reshape(m, 4, 3)
         scatter = False
     return (blocks, layout.colour_offsets, scatter, model.csr_offsets, model.csr_slots,
@@ -283,9 +284,10 @@ def step_arguments(model, work):
 
 
 def force_buffer(model, dtype=np.float64):
-    """Vertex forces (n, 3) for the colour scatter, or per-(tet, corner) forces (m, 4, 3) for csr."""
+    """Vertex forces (n, ``FORCE_COLUMNS``) for the colour scatter (x, y, z and a zero: a vector
+    per vertex, ``kernels.simd.add_corner_force``), or per-(tet, corner) forces (m, 4, 3) for csr."""
     if model.blocks.scatter == "colour":
-        return np.zeros((model.node_count, 3), dtype=dtype)
+        return np.zeros((model.node_count, FORCE_COLUMNS), dtype=dtype)
     return np.empty((model.tet_count, 4, 3), dtype=dtype)
 
 

@@ -58,6 +58,7 @@ from ..mesh.reorder import SLABS
 from .jit import njit, njit_inline
 from .mat3 import mat3_ddot_inline, mat3_det_inline, mat3_mul_inline, mat3_mul_transpose_b_inline, mat3_scale_inline
 from .polar3 import jacobi_rotation_and_stretch, newton_polar_finish, newton_polar_start
+from .simd import add_corner_force, gather_corner_rows
 
 BLOCK = 64                 # tets per block (a multiple of the SIMD width: 8 doubles in AVX-512)
 GROUP = 16                 # lanes per group of the rest data (the lane loop's trip count)
@@ -287,13 +288,10 @@ _neohookean_first_piola_displacement = njit_inline(neohookean_first_piola_displa
 
 @njit
 def gather_corners(x, block_tets, b, buf):
-    """Gather block ``b``'s corner positions (or displacements) into the scratch ``buf``."""
+    """Gather block ``b``'s corner positions (or displacements) ``x`` (n, 3) into the scratch ``buf``
+    (``simd.gather_corner_rows``: a vector store per row of lanes, not a scalar store per value)."""
     for c in range(4):
-        for j in range(BLOCK):
-            i = block_tets[b, c, j]
-            buf[(ROW_X + 3 * c) * BLOCK + j] = x[i, 0]
-            buf[(ROW_X + 3 * c + 1) * BLOCK + j] = x[i, 1]
-            buf[(ROW_X + 3 * c + 2) * BLOCK + j] = x[i, 2]
+        gather_corner_rows(x, block_tets, (b * 4 + c) * BLOCK, buf, (ROW_X + 3 * c) * BLOCK, BLOCK)
 
 
 @njit_inline
@@ -537,14 +535,13 @@ def block_forces(x, block_tets, block_rest, b, model, lam, mu, buf, rest):
 
 
 @njit
-def scatter_block(block_tets, b, lane_count, buf, f):
-    """Add the corner forces of the first ``lane_count`` lanes of ``buf`` to ``f`` (node_count, 3)."""
+def scatter_block(block_tets, b, lane_count, buf, vertex_forces):
+    """Add the corner forces of the first ``lane_count`` lanes of ``buf`` to ``vertex_forces``
+    (node_count, ``simd.FORCE_COLUMNS``): a vector read-modify-write per corner
+    (``simd.add_corner_force``), the fourth column staying zero."""
     for j in range(lane_count):
         for c in range(4):
-            i = block_tets[b, c, j]
-            f[i, 0] += buf[(ROW_F + 3 * c) * BLOCK + j]
-            f[i, 1] += buf[(ROW_F + 3 * c + 1) * BLOCK + j]
-            f[i, 2] += buf[(ROW_F + 3 * c + 2) * BLOCK + j]
+            add_corner_force(vertex_forces, block_tets[b, c, j], buf, (ROW_F + 3 * c) * BLOCK + j, BLOCK)
 
 
 @njit

@@ -1,0 +1,127 @@
+"""The two memory moves of the blocked step that LLVM cannot vectorise by itself, written as LLVM IR.
+
+``kernels.blocked`` gathers the corner positions of a block of tets into rows of lanes and adds
+the corner forces back into the vertices.  Written as Numba loops, both compile to one scalar
+load and one scalar store per value: the store port is then the limit (12 stores a tet each
+way), and LLVM cannot vectorise the gather because it cannot prove that ``x[tets[j]]`` and the
+scratch buffer do not overlap (no runtime check exists for an indexed access).  These intrinsics
+emit the instructions directly:
+
+- ``gather_corner_rows``: the scalar loads of a row of lanes are inserted into vector registers
+  (``vmovsd`` / ``vmovhps`` / ``vinsertf128`` / ``vinsertf64x4`` on AVX-512) and stored once per
+  vector: per tet 12 loads and 1.5 stores (float64) instead of 12 and 12.  The AVX-512 gather
+  instruction, which LLVM emits when it does vectorise such a loop, was slower than the scalar
+  loop on Zen 4.
+- ``add_corner_force``: a corner's three force components are added to a vertex's row of four
+  (``(n, 4)`` vertex forces, the fourth always zero) as one vector read-modify-write: 4 stores a
+  tet instead of 12.  Each component gets the same IEEE addition as a scalar one: the same bits.
+
+Measured per tet, one thread, data in L1/L2 (10k-tet beam, AVX-512, Zen 4, medians of 9): the
+gather 3.6-3.8 ns against 4.8 (float32 and float64 alike), the scatter 3.1-3.2 ns against 4.6-4.8.
+
+Both take C-contiguous arrays and no bounds checks (the block layout guarantees the indices).
+"""
+
+from llvmlite import ir
+from numba import types
+from numba.extending import intrinsic
+
+# Bytes of one vector of the gathered rows (a zmm register; LLVM splits it where vectors are
+# narrower, e.g. into two ymm on AVX2).
+VECTOR_BYTES = 64
+# Columns of the vertex forces ``add_corner_force`` adds into: x, y, z and a zero.
+FORCE_COLUMNS = 4
+
+
+def _is_c_array(t, ndim):
+    return isinstance(t, types.Array) and t.ndim == ndim and t.layout == "C"
+
+
+def _int64(context, builder, value, value_type):
+    return context.cast(builder, value, value_type, types.int64)
+
+
+@intrinsic(prefer_literal=True)
+def gather_corner_rows(typingctx, x, tets, tet_offset, buf, buf_offset, lanes):
+    """Gather the vertex rows ``x[tets.flat[tet_offset + j]]`` of ``lanes`` lanes (a literal multiple
+    of the vector width) into three rows of ``buf``:
+    ``buf[buf_offset + k * lanes + j] = x[tets.flat[tet_offset + j], k]``, k < 3, j < lanes.
+
+    x: (n, 3) C-contiguous float; tets: C-contiguous uint32 (any shape, indexed flat); buf: 1D,
+    the dtype of ``x``; offsets: integers (elements).
+    """
+    if not (_is_c_array(x, 2) and isinstance(tets, types.Array) and tets.layout == "C"
+            and tets.dtype == types.uint32 and _is_c_array(buf, 1) and buf.dtype == x.dtype
+            and isinstance(lanes, types.IntegerLiteral)):
+        return None
+    lane_count = lanes.literal_value
+    sig = types.void(x, tets, tet_offset, buf, buf_offset, lanes)
+
+    def codegen(context, builder, signature, args):
+        x_arg, tets_arg, tet_offset_arg, buf_arg, buf_offset_arg, _ = args
+        x_data = context.make_array(signature.args[0])(context, builder, x_arg).data
+        tet_data = context.make_array(signature.args[1])(context, builder, tets_arg).data
+        buf_data = context.make_array(signature.args[3])(context, builder, buf_arg).data
+        i64 = ir.IntType(64)
+        i32 = ir.IntType(32)
+        float_type = context.get_value_type(signature.args[0].dtype)
+        size = context.get_abi_sizeof(float_type)
+        width = VECTOR_BYTES // size
+        if lane_count % width:
+            raise ValueError(f"gather_corner_rows: {lane_count} lanes, not a multiple of {width}")
+        vector_type = ir.VectorType(float_type, width)
+        tet_offset = _int64(context, builder, tet_offset_arg, signature.args[2])
+        buf_offset = _int64(context, builder, buf_offset_arg, signature.args[4])
+        for first in range(0, lane_count, width):
+            rows = [ir.Constant(vector_type, ir.Undefined)] * 3
+            for lane in range(width):
+                index_ptr = builder.gep(tet_data, [builder.add(tet_offset, ir.Constant(i64, first + lane))],
+                                        inbounds=True)
+                row = builder.mul(builder.zext(builder.load(index_ptr, align=4), i64), ir.Constant(i64, 3))
+                for k in range(3):
+                    value_ptr = builder.gep(x_data, [builder.add(row, ir.Constant(i64, k))], inbounds=True)
+                    rows[k] = builder.insert_element(rows[k], builder.load(value_ptr, align=size),
+                                                     ir.Constant(i32, lane))
+            for k in range(3):
+                out = builder.gep(buf_data, [builder.add(buf_offset, ir.Constant(i64, k * lane_count + first))],
+                                  inbounds=True)
+                builder.store(rows[k], builder.bitcast(out, vector_type.as_pointer()), align=size)
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+@intrinsic
+def add_corner_force(typingctx, forces, vertex, buf, buf_offset, row_stride):
+    """``forces[vertex, k] += buf[buf_offset + k * row_stride]`` for k < 3, as one vector
+    read-modify-write of the row ``forces[vertex, :4]`` (its fourth value gets ``+ 0``).
+
+    forces: (n, 4) C-contiguous float; buf: 1D, the dtype of ``forces``; vertex, offsets: integers.
+    """
+    if not (_is_c_array(forces, 2) and _is_c_array(buf, 1) and buf.dtype == forces.dtype):
+        return None
+    sig = types.void(forces, vertex, buf, buf_offset, row_stride)
+
+    def codegen(context, builder, signature, args):
+        forces_arg, vertex_arg, buf_arg, buf_offset_arg, row_stride_arg = args
+        forces_data = context.make_array(signature.args[0])(context, builder, forces_arg).data
+        buf_data = context.make_array(signature.args[2])(context, builder, buf_arg).data
+        i64 = ir.IntType(64)
+        i32 = ir.IntType(32)
+        float_type = context.get_value_type(signature.args[0].dtype)
+        size = context.get_abi_sizeof(float_type)
+        vector_type = ir.VectorType(float_type, FORCE_COLUMNS)
+        vertex = _int64(context, builder, vertex_arg, signature.args[1])
+        offset = _int64(context, builder, buf_offset_arg, signature.args[3])
+        stride = _int64(context, builder, row_stride_arg, signature.args[4])
+        add = ir.Constant(vector_type, [ir.Constant(float_type, 0.0)] * FORCE_COLUMNS)
+        for k in range(3):
+            value_ptr = builder.gep(buf_data, [offset], inbounds=True)
+            add = builder.insert_element(add, builder.load(value_ptr, align=size), ir.Constant(i32, k))
+            offset = builder.add(offset, stride)
+        row = builder.gep(forces_data, [builder.mul(vertex, ir.Constant(i64, FORCE_COLUMNS))], inbounds=True)
+        row = builder.bitcast(row, vector_type.as_pointer())
+        builder.store(builder.fadd(builder.load(row, align=size), add), row, align=size)
+        return context.get_dummy_value()
+
+    return sig, codegen

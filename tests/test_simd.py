@@ -1,0 +1,72 @@
+"""The hand-written gather and scatter of ``kernels.simd`` against NumPy's fancy indexing and
+``np.add.at``, bit for bit, in both precisions; and through ``kernels.blocked`` on a whole block."""
+
+import numpy as np
+import pytest
+
+from softsim.kernels.blocked import BLOCK, ROW_F, ROW_X, ROWS, gather_corners, scatter_block
+from softsim.kernels.jit import njit
+from softsim.kernels.simd import FORCE_COLUMNS, add_corner_force, gather_corner_rows
+
+
+@njit
+def gather_rows(x, tets, tet_offset, buf, buf_offset):
+    gather_corner_rows(x, tets, tet_offset, buf, buf_offset, 32)
+
+
+@njit
+def add_forces(forces, vertices, buf, row_stride):
+    for j in range(vertices.shape[0]):
+        add_corner_force(forces, vertices[j], buf, j, row_stride)
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_gather_corner_rows_is_fancy_indexing(dtype):
+    rng = np.random.default_rng(1)
+    x = rng.standard_normal((50, 3)).astype(dtype)
+    tets = rng.integers(0, 50, size=(3, 40)).astype(np.uint32)
+    buf = np.full(200, np.nan, dtype=dtype)
+    gather_rows(x, tets, 45, buf, 7)             # lanes 45..76 of the flat tets, from buf[7]
+    lanes = tets.reshape(-1)[45:77]
+    expected = x[lanes].T                        # (3, 32): row k holds component k
+    np.testing.assert_array_equal(buf[7:7 + 96].reshape(3, 32), expected)
+    assert np.isnan(buf[:7]).all() and np.isnan(buf[7 + 96:]).all()     # nothing written outside
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_add_corner_force_is_add_at(dtype):
+    rng = np.random.default_rng(2)
+    n, count, stride = 20, 300, 301
+    vertices = rng.integers(0, n, size=count)    # many repeats: each must accumulate in order
+    buf = rng.standard_normal(3 * stride).astype(dtype)
+    start = rng.standard_normal((n, 3)).astype(dtype)
+    forces = np.zeros((n, FORCE_COLUMNS), dtype=dtype)
+    forces[:, :3] = start
+    add_forces(forces, vertices, buf, stride)
+    expected = start.copy()
+    for k in range(3):                           # np.add.at sums in index order, like the scatter
+        np.add.at(expected[:, k], vertices, buf[k * stride:k * stride + count])
+    np.testing.assert_array_equal(forces[:, :3], expected)
+    assert not forces[:, 3].any()
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_block_gather_and_scatter(dtype):
+    rng = np.random.default_rng(3)
+    n = 100
+    x = rng.standard_normal((n, 3)).astype(dtype)
+    block_tets = rng.integers(0, n, size=(2, 4, BLOCK)).astype(np.uint32)
+    buf = rng.standard_normal(ROWS * BLOCK).astype(dtype)
+    gather_corners(x, block_tets, 1, buf)
+    for c in range(4):
+        gathered = buf[(ROW_X + 3 * c) * BLOCK:(ROW_X + 3 * c + 3) * BLOCK].reshape(3, BLOCK)
+        np.testing.assert_array_equal(gathered, x[block_tets[1, c]].T)
+    forces = np.zeros((n, FORCE_COLUMNS), dtype=dtype)
+    lane_count = BLOCK - 5
+    scatter_block(block_tets, 1, lane_count, buf, forces)
+    expected = np.zeros((n, 3), dtype=dtype)
+    for j in range(lane_count):                  # lane by lane, corner by corner: the scatter's order
+        for c in range(4):
+            expected[block_tets[1, c, j]] += buf[(ROW_F + 3 * c + np.arange(3)) * BLOCK + j]
+    np.testing.assert_array_equal(forces[:, :3], expected)
+    assert not forces[:, 3].any()
