@@ -70,3 +70,14 @@ def test_block_gather_and_scatter(dtype):
             expected[block_tets[1, c, j]] += buf[(ROW_F + 3 * c + np.arange(3)) * BLOCK + j]
     np.testing.assert_array_equal(forces[:, :3], expected)
     assert not forces[:, 3].any()
+
+
+def test_wrong_widths_are_refused():
+    """The intrinsics assume 3 columns of positions and ``FORCE_COLUMNS`` of forces: the block
+    functions refuse other widths instead of reading or writing the wrong rows."""
+    block_tets = np.zeros((1, 4, BLOCK), dtype=np.uint32)
+    buf = np.zeros(ROWS * BLOCK)
+    with pytest.raises(ValueError, match="3 columns"):
+        gather_corners(np.zeros((5, 4)), block_tets, 0, buf)
+    with pytest.raises(ValueError, match="FORCE_COLUMNS"):
+        scatter_block(block_tets, 0, BLOCK, buf, np.zeros((5, 3)))

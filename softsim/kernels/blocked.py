@@ -58,7 +58,7 @@ from ..mesh.reorder import SLABS
 from .jit import njit, njit_inline
 from .mat3 import mat3_ddot_inline, mat3_det_inline, mat3_mul_inline, mat3_mul_transpose_b_inline, mat3_scale_inline
 from .polar3 import jacobi_rotation_and_stretch, newton_polar_finish, newton_polar_start
-from .simd import add_corner_force, gather_corner_rows
+from .simd import FORCE_COLUMNS, add_corner_force, gather_corner_rows
 
 BLOCK = 64                 # tets per block (a multiple of the SIMD width: 8 doubles in AVX-512)
 GROUP = 16                 # lanes per group of the rest data (the lane loop's trip count)
@@ -290,6 +290,8 @@ _neohookean_first_piola_displacement = njit_inline(neohookean_first_piola_displa
 def gather_corners(x, block_tets, b, buf):
     """Gather block ``b``'s corner positions (or displacements) ``x`` (n, 3) into the scratch ``buf``
     (``simd.gather_corner_rows``: a vector store per row of lanes, not a scalar store per value)."""
+    if x.shape[1] != 3:
+        raise ValueError("gather_corners: x must have 3 columns")
     for c in range(4):
         gather_corner_rows(x, block_tets, (b * 4 + c) * BLOCK, buf, (ROW_X + 3 * c) * BLOCK, BLOCK)
 
@@ -539,6 +541,8 @@ def scatter_block(block_tets, b, lane_count, buf, vertex_forces):
     """Add the corner forces of the first ``lane_count`` lanes of ``buf`` to ``vertex_forces``
     (node_count, ``simd.FORCE_COLUMNS``): a vector read-modify-write per corner
     (``simd.add_corner_force``), the fourth column staying zero."""
+    if vertex_forces.shape[1] != FORCE_COLUMNS:
+        raise ValueError("scatter_block: the vertex forces must have FORCE_COLUMNS columns")
     for j in range(lane_count):
         for c in range(4):
             add_corner_force(vertex_forces, block_tets[b, c, j], buf, (ROW_F + 3 * c) * BLOCK + j, BLOCK)

@@ -19,7 +19,9 @@ emit the instructions directly:
 Measured per tet, one thread, data in L1/L2 (10k-tet beam, AVX-512, Zen 4, medians of 9): the
 gather 3.6-3.8 ns against 4.8 (float32 and float64 alike), the scatter 3.1-3.2 ns against 4.6-4.8.
 
-Both take C-contiguous arrays and no bounds checks (the block layout guarantees the indices).
+Both take C-contiguous arrays (the typing rejects others) and check no bounds (the block layout
+guarantees the indices); they assume 3 columns in ``x`` and ``FORCE_COLUMNS`` in the vertex
+forces, which their callers in ``kernels.blocked`` check.
 """
 
 from llvmlite import ir
@@ -50,9 +52,10 @@ def gather_corner_rows(typingctx, x, tets, tet_offset, buf, buf_offset, lanes):
     x: (n, 3) C-contiguous float; tets: C-contiguous uint32 (any shape, indexed flat); buf: 1D,
     the dtype of ``x``; offsets: integers (elements).
     """
-    if not (_is_c_array(x, 2) and isinstance(tets, types.Array) and tets.layout == "C"
-            and tets.dtype == types.uint32 and _is_c_array(buf, 1) and buf.dtype == x.dtype
-            and isinstance(lanes, types.IntegerLiteral)):
+    if not (_is_c_array(x, 2) and isinstance(x.dtype, types.Float) and isinstance(tets, types.Array)
+            and tets.layout == "C" and tets.dtype == types.uint32 and _is_c_array(buf, 1) and buf.dtype == x.dtype
+            and isinstance(lanes, types.IntegerLiteral)
+            and lanes.literal_value % (VECTOR_BYTES * 8 // x.dtype.bitwidth) == 0):
         return None
     lane_count = lanes.literal_value
     sig = types.void(x, tets, tet_offset, buf, buf_offset, lanes)
@@ -67,8 +70,6 @@ def gather_corner_rows(typingctx, x, tets, tet_offset, buf, buf_offset, lanes):
         float_type = context.get_value_type(signature.args[0].dtype)
         size = context.get_abi_sizeof(float_type)
         width = VECTOR_BYTES // size
-        if lane_count % width:
-            raise ValueError(f"gather_corner_rows: {lane_count} lanes, not a multiple of {width}")
         vector_type = ir.VectorType(float_type, width)
         tet_offset = _int64(context, builder, tet_offset_arg, signature.args[2])
         buf_offset = _int64(context, builder, buf_offset_arg, signature.args[4])
@@ -98,7 +99,8 @@ def add_corner_force(typingctx, forces, vertex, buf, buf_offset, row_stride):
 
     forces: (n, 4) C-contiguous float; buf: 1D, the dtype of ``forces``; vertex, offsets: integers.
     """
-    if not (_is_c_array(forces, 2) and _is_c_array(buf, 1) and buf.dtype == forces.dtype):
+    if not (_is_c_array(forces, 2) and isinstance(forces.dtype, types.Float) and _is_c_array(buf, 1)
+            and buf.dtype == forces.dtype):
         return None
     sig = types.void(forces, vertex, buf, buf_offset, row_stride)
 
