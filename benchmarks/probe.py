@@ -145,7 +145,7 @@ def memory_moves():
             signature = next(sig for sig in fn.signatures if np.dtype(dtype).name in str(sig))
             code = fn.inspect_asm(signature).split("_ZN7cpython")[0]     # not the Python wrapper
             counts = {}
-            for m in re.finditer(r"^\s+(v?mov\w*)\s+%(\w+), [^\n]*\(", code, re.M):
+            for m in re.finditer(r"^\s+(v?mov\w*)\s+%([xyz]mm\d+), [^\n]*\(", code, re.M):   # float stores
                 register = m.group(2)
                 kind = "store " + (register[:3] if register[:3] in ("zmm", "ymm") else
                                    "xmm" if m.group(1) in ("vmovups", "vmovaps", "vmovupd", "vmovapd") else "scalar")

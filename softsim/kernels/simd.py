@@ -43,6 +43,17 @@ def _int64(context, builder, value, value_type):
     return context.cast(builder, value, value_type, types.int64)
 
 
+def _data(context, builder, array_type, array):
+    """The data pointer of a Numba array value (typed: a GEP on it counts elements)."""
+    return context.make_array(array_type)(context, builder, array).data
+
+
+def _float_type(context, dtype):
+    """``(LLVM type, size in bytes)`` of the float ``dtype``."""
+    float_type = context.get_value_type(dtype)
+    return float_type, context.get_abi_sizeof(float_type)
+
+
 @intrinsic(prefer_literal=True)
 def gather_corner_rows(typingctx, x, tets, tet_offset, buf, buf_offset, lanes):
     """Gather the vertex rows ``x[tets.flat[tet_offset + j]]`` of ``lanes`` lanes (a literal multiple
@@ -62,13 +73,11 @@ def gather_corner_rows(typingctx, x, tets, tet_offset, buf, buf_offset, lanes):
 
     def codegen(context, builder, signature, args):
         x_arg, tets_arg, tet_offset_arg, buf_arg, buf_offset_arg, _ = args
-        x_data = context.make_array(signature.args[0])(context, builder, x_arg).data
-        tet_data = context.make_array(signature.args[1])(context, builder, tets_arg).data
-        buf_data = context.make_array(signature.args[3])(context, builder, buf_arg).data
-        i64 = ir.IntType(64)
-        i32 = ir.IntType(32)
-        float_type = context.get_value_type(signature.args[0].dtype)
-        size = context.get_abi_sizeof(float_type)
+        x_data = _data(context, builder, signature.args[0], x_arg)
+        tet_data = _data(context, builder, signature.args[1], tets_arg)
+        buf_data = _data(context, builder, signature.args[3], buf_arg)
+        i64, i32 = ir.IntType(64), ir.IntType(32)
+        float_type, size = _float_type(context, signature.args[0].dtype)
         width = VECTOR_BYTES // size
         vector_type = ir.VectorType(float_type, width)
         tet_offset = _int64(context, builder, tet_offset_arg, signature.args[2])
@@ -106,12 +115,10 @@ def add_corner_force(typingctx, forces, vertex, buf, buf_offset, row_stride):
 
     def codegen(context, builder, signature, args):
         forces_arg, vertex_arg, buf_arg, buf_offset_arg, row_stride_arg = args
-        forces_data = context.make_array(signature.args[0])(context, builder, forces_arg).data
-        buf_data = context.make_array(signature.args[2])(context, builder, buf_arg).data
-        i64 = ir.IntType(64)
-        i32 = ir.IntType(32)
-        float_type = context.get_value_type(signature.args[0].dtype)
-        size = context.get_abi_sizeof(float_type)
+        forces_data = _data(context, builder, signature.args[0], forces_arg)
+        buf_data = _data(context, builder, signature.args[2], buf_arg)
+        i64, i32 = ir.IntType(64), ir.IntType(32)
+        float_type, size = _float_type(context, signature.args[0].dtype)
         vector_type = ir.VectorType(float_type, FORCE_COLUMNS)
         vertex = _int64(context, builder, vertex_arg, signature.args[1])
         offset = _int64(context, builder, buf_offset_arg, signature.args[3])
