@@ -108,7 +108,7 @@ def asm():
         buf = np.zeros(blocked.ROWS * blocked.BLOCK, dtype=dtype)
         rest = np.full((blocked.GROUPS, blocked.REST_ROWS, blocked.GROUP), 0.1, dtype=dtype)
         fn = getattr(blocked, function)
-        fn(rest, buf, dtype(1.0), dtype(1.0))
+        fn(rest, buf, dtype(1.0), dtype(1.0), rest)
         code = "\n".join(fn.inspect_asm().values())
         counts = {}
         for m in re.finditer(r"^\s+(v(?:fn?m(?:add|sub)\w*|mul|add|sub|div|sqrt)\d*(?:pd|sd|ps|ss))\s+([^\n]*)", code, re.M):

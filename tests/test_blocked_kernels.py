@@ -15,7 +15,7 @@ import pytest
 
 import naive
 from softsim.integrators.symplectic_euler import advance, step_arguments, work_buffer
-from softsim.kernels.blocked import BLOCK, build_block_layout
+from softsim.kernels.blocked import BLOCK, PREFETCH_BLOCKS_AHEAD, PREFETCH_FROM_BYTES, build_block_layout
 from softsim.kernels.rest_state import rest_state, vertex_tet_csr
 from softsim.materials.models import MODEL_IDS, model_lame_parameters
 from softsim.mesh.generate import structured_box
@@ -128,6 +128,31 @@ def test_blocked_forces_are_bitwise_deterministic_on_any_thread_count(scatter):
     finally:
         numba.set_num_threads(threads)
     assert np.abs(f1.sum(axis=0)).max() < 1e-9 * np.abs(f1).max()     # Newton's third law
+
+
+@pytest.mark.parametrize("model", ["stvk", "neohookean", "corotated", "linear"])
+def test_prefetching_the_rest_data_changes_no_bit(model):
+    """A large mesh's step fetches the rest data of later blocks into L2 (``BlockLayout.prefetch``);
+    forced onto a small mesh (whose own layout has none), it computes the same bits, up to the
+    last block, where the block ahead is clamped to the last."""
+    points, tets, x = mesh((9, 6, 4))
+    body = Body(points, tets, "colour")
+    assert body.blocks.prefetch is None
+    lam, mu = model_lame_parameters(model, E_PA, NU)
+    plain = body.forces(x, model, lam, mu)
+    for ahead in (1, PREFETCH_BLOCKS_AHEAD):
+        body.blocks = dataclasses.replace(body.blocks, prefetch=ahead)
+        assert body.forces(x, model, lam, mu).tobytes() == plain.tobytes()
+
+
+def test_only_meshes_whose_rest_data_outgrow_the_cache_prefetch():
+    """The threshold is on the bytes of rest data: about 100k tets in float64, twice that in float32."""
+    tets_over = PREFETCH_FROM_BYTES // (10 * 8) + BLOCK
+    tets = np.zeros((tets_over, 4), dtype=np.int64)
+    Dm_inv, V0 = np.zeros((tets_over, 3, 3)), np.zeros(tets_over)
+    assert build_block_layout(tets, Dm_inv, V0, 1).prefetch == PREFETCH_BLOCKS_AHEAD
+    assert build_block_layout(tets, Dm_inv, V0, 1, dtype=np.float32).prefetch is None
+    assert build_block_layout(tets[:tets_over // 2], Dm_inv[:tets_over // 2], V0[:tets_over // 2], 1).prefetch is None
 
 
 def test_small_meshes_step_on_fewer_threads():

@@ -237,7 +237,7 @@ def test_lane_loop_gives_the_bits_of_the_per_tet_law(second_stage, fallbacks):
     assert sum(not newton_polar_rotation_jit(tuple(F.ravel()))[1] for F in Fs) == fallbacks
     assert sum(not newton_polar_start_jit(tuple(F.ravel()))[1] for F in Fs) == fallbacks + second_stage
     rest, buf = block_of(Fs)
-    corotated_block(rest, buf, LAM, MU)
+    corotated_block(rest, buf, LAM, MU, rest)
     for j in range(BLOCK):
         P = P_of(Fs[j])
         for c in range(1, 4):

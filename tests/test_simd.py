@@ -1,12 +1,16 @@
 """The hand-written gather and scatter of ``kernels.simd`` against NumPy's fancy indexing and
-``np.add.at``, bit for bit, in both precisions; and through ``kernels.blocked`` on a whole block."""
+``np.add.at``, bit for bit, in both precisions; and through ``kernels.blocked`` on a whole block.
+The prefetch hint: what it compiles to, and that it changes nothing."""
 
+import platform
+
+import numba
 import numpy as np
 import pytest
 
 from softsim.kernels.blocked import BLOCK, ROW_F, ROW_X, ROWS, gather_corners, scatter_block
 from softsim.kernels.jit import njit
-from softsim.kernels.simd import FORCE_COLUMNS, add_corner_force, gather_corner_rows
+from softsim.kernels.simd import FORCE_COLUMNS, add_corner_force, gather_corner_rows, prefetch_line
 
 
 @njit
@@ -81,3 +85,28 @@ def test_wrong_widths_are_refused():
         gather_corners(np.zeros((5, 4)), block_tets, 0, buf)
     with pytest.raises(ValueError, match="FORCE_COLUMNS"):
         scatter_block(block_tets, 0, BLOCK, buf, np.zeros((5, 3)))
+
+
+@numba.njit          # not cached: Numba inspects only freshly compiled code
+def prefetch_every_line(a, line):
+    for e in range(0, a.size, line):
+        prefetch_line(a, e)
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_prefetch_line_is_an_l2_prefetch_and_nothing_else(dtype):
+    """``prefetch_line`` compiles to a prefetch into L2 (``prefetcht1`` on x86-64) and leaves the
+    array as it was."""
+    a = np.arange(4 * 10 * 16, dtype=dtype).reshape(4, 10, 16)
+    before = a.copy()
+    prefetch_every_line(a, 64 // a.itemsize)
+    np.testing.assert_array_equal(a, before)
+    if platform.machine() in ("x86_64", "AMD64"):
+        asm = prefetch_every_line.inspect_asm(prefetch_every_line.signatures[-1])
+        assert "prefetcht1" in asm
+        assert not any(f"prefetch{kind}\t" in asm for kind in ("t0", "t2", "nta"))
+
+
+def test_prefetch_line_takes_only_contiguous_arrays():
+    with pytest.raises(numba.TypingError):
+        prefetch_every_line(np.zeros((10, 16))[:, ::2], 8)

@@ -168,9 +168,10 @@ def block_range_forces(x, rest, blocks, first, stop, model, lam, mu, scatter, ve
     block_tets = blocks[0]
     block_rest = blocks[1]
     tet_count = blocks[2]
+    prefetch = blocks[7]
     buf = np.empty(ROWS * BLOCK, dtype=block_rest.dtype)
     for b in range(first, stop):
-        block_forces(x, block_tets, block_rest, b, model, lam, mu, buf, rest)
+        block_forces(x, block_tets, block_rest, b, model, lam, mu, buf, rest, prefetch)
         lane_count = min(BLOCK, tet_count - b * BLOCK)
         if scatter:
             scatter_block(block_tets, b, lane_count, buf, vertex_forces)
@@ -188,8 +189,8 @@ def advance(x, rest, v, step_start, step_count, dt,
     rest: None; or, in float32, the rest positions (n, 3) [m], ``x`` then holding displacements
     from them (and ``held_start`` too).  Every array and scalar is in the precision of ``x``.
     step_start: index of the first step (time ``step_start * dt`` [s]); dt [s].
-    blocks: ``(block_tets, block_rest, tet_count, part_offsets, colour_parts, owned_offsets, owned)``
-    of a ``kernels.blocked.BlockLayout``; colour_offsets: (colours + 1,) into colour_parts; model
+    blocks: ``(block_tets, block_rest, tet_count, part_offsets, colour_parts, owned_offsets, owned,
+    prefetch)`` of a ``kernels.blocked.BlockLayout``; colour_offsets: (colours + 1,) into colour_parts; model
     id, Lame lam, mu [Pa].
     scatter True: the forces are added into ``vertex_forces`` (node_count, 4: x, y, z and a zero,
     ``kernels.simd.FORCE_COLUMNS``), one colour of parts
@@ -270,7 +271,7 @@ def step_arguments(model, work):
     if flat.size < needed:
         raise ValueError(f"work buffer of {flat.size} floats, the {layout.scatter} scatter needs {needed}")
     blocks = (layout.tets, layout.rest, layout.tet_count, layout.part_offsets, layout.colour_parts,
-              layout.owned_offsets, layout.owned)
+              layout.owned_offsets, layout.owned, layout.prefetch)
     if layout.scatter == "colour":
         vertex_forces = flat[:FORCE_COLUMNS * n].reshape(n, FORCE_COLUMNS)
         corner_forces = np.empty((0, 4, 3), dtype=flat.dtype)

@@ -1,4 +1,4 @@
-"""The two memory moves of the blocked step that LLVM cannot vectorise by itself, written as LLVM IR.
+"""The memory moves of the blocked step that Numba cannot express, written as LLVM IR.
 
 ``kernels.blocked`` gathers the corner positions of a block of tets into rows of lanes and adds
 the corner forces back into the vertices.  Written as Numba loops, both compile to one scalar
@@ -19,12 +19,19 @@ emit the instructions directly:
 Measured per tet, one thread, data in L1/L2 (10k-tet beam, AVX-512, Zen 4, medians of 9): the
 gather 3.6-3.8 ns against 4.8 (float32 and float64 alike), the scatter 3.1-3.2 ns against 4.6-4.8.
 
-Both take C-contiguous arrays (the typing rejects others) and check no bounds (the block layout
-guarantees the indices); they assume 3 columns in ``x`` and ``FORCE_COLUMNS`` in the vertex
-forces, which their callers in ``kernels.blocked`` check.
+And a hint Numba has no word for:
+
+- ``prefetch_line``: fetch a cache line into L2 ahead of its use (``llvm.prefetch`` with locality
+  2: ``prefetcht1`` on x86), so that the rest data of a block are on their way while an earlier
+  block computes (``kernels.blocked``).
+
+All take C-contiguous arrays (the typing rejects others) and check no bounds (the block layout
+guarantees the indices); the gather and the scatter assume 3 columns in ``x`` and
+``FORCE_COLUMNS`` in the vertex forces, which their callers in ``kernels.blocked`` check.  A
+prefetch never faults, but its callers keep it inside the array too.
 """
 
-from llvmlite import ir
+from llvmlite import binding, ir
 from numba import types
 from numba.extending import intrinsic
 
@@ -33,6 +40,13 @@ from numba.extending import intrinsic
 VECTOR_BYTES = 64
 # Columns of the vertex forces ``add_corner_force`` adds into: x, y, z and a zero.
 FORCE_COLUMNS = 4
+# Bytes of a cache line (x86-64 and the Arm cores Numba targets).
+CACHE_LINE_BYTES = 64
+# ``llvm.prefetch`` locality: 3 keeps the line in every level (``prefetcht0``), 2 in L2 and
+# beyond (``prefetcht1``), 0 streams it past the caches (``prefetchnta``).
+PREFETCH_LOCALITY_L2 = 2
+# The name of ``llvm.prefetch`` for a byte pointer: LLVM 15 made pointers opaque (``p0``).
+_PREFETCH = "llvm.prefetch.p0" if binding.llvm_version_info[0] >= 15 else "llvm.prefetch.p0i8"
 
 
 def _is_c_array(t, ndim):
@@ -131,6 +145,28 @@ def add_corner_force(typingctx, forces, vertex, buf, buf_offset, row_stride):
         row = builder.gep(forces_data, [builder.mul(vertex, ir.Constant(i64, FORCE_COLUMNS))], inbounds=True)
         row = builder.bitcast(row, vector_type.as_pointer())
         builder.store(builder.fadd(builder.load(row, align=size), add), row, align=size)
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+@intrinsic
+def prefetch_line(typingctx, a, index):
+    """Hint the cache line holding element ``index`` (flat) of the C-contiguous array ``a`` into
+    L2 (``llvm.prefetch``, read, locality ``PREFETCH_LOCALITY_L2``).  A hint: no load, no fault."""
+    if not (isinstance(a, types.Array) and a.layout == "C" and isinstance(index, types.Integer)):
+        return None
+    sig = types.void(a, index)
+
+    def codegen(context, builder, signature, args):
+        a_arg, index_arg = args
+        i8_ptr, i32 = ir.IntType(8).as_pointer(), ir.IntType(32)
+        address = builder.gep(_data(context, builder, signature.args[0], a_arg),
+                              [_int64(context, builder, index_arg, signature.args[1])])
+        prefetch = builder.module.globals.get(_PREFETCH) or ir.Function(
+            builder.module, ir.FunctionType(ir.VoidType(), [i8_ptr, i32, i32, i32]), _PREFETCH)
+        builder.call(prefetch, [builder.bitcast(address, i8_ptr), ir.Constant(i32, 0),
+                                ir.Constant(i32, PREFETCH_LOCALITY_L2), ir.Constant(i32, 1)])
         return context.get_dummy_value()
 
     return sig, codegen
