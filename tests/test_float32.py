@@ -121,6 +121,23 @@ def test_float32_kernel_forces_match_naive_float64(model, scatter, strain):
     assert np.abs(got - expected).max() < 1e-5 * np.abs(expected).max()
 
 
+@pytest.mark.parametrize("model", DISPLACEMENT_FORM_MODELS)
+def test_float32_prefetching_changes_no_bit(model):
+    """The displacement-form lane loops with the rest data prefetched (``BlockLayout.prefetch``,
+    forced onto a mesh too small to get it) give the same bits as without."""
+    import dataclasses
+
+    from softsim.kernels.blocked import PREFETCH_BLOCKS_AHEAD
+
+    points, tets, x = mesh((7, 5, 3))
+    body = SingleBody(points, tets, "colour")
+    assert body.blocks.prefetch is None
+    lam, mu = model_lame_parameters(model, E_PA, NU)
+    plain = float32_forces(body, x - points, model, lam, mu)
+    body.blocks = dataclasses.replace(body.blocks, prefetch=PREFETCH_BLOCKS_AHEAD)
+    assert float32_forces(body, x - points, model, lam, mu).tobytes() == plain.tobytes()
+
+
 def run_pair(scene_data, steps):
     """Positions [m] after ``steps`` steps in float64 and in float32, and the rest positions."""
     out = []

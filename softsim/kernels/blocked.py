@@ -21,8 +21,9 @@ They are stored in groups of ``GROUP`` lanes, a group's ten rows one after the o
 block's rest data is read nearly in address order.  Streaming such rows from memory on one core
 (float64): ten rows of 64 lanes (ten interleaved streams 512 B apart) 11 GB/s, groups of 16 lanes
 22 GB/s, of 8 lanes 31 GB/s; but LLVM does not vectorise a loop of fewer than 16 iterations that
-needs a runtime alias check, so groups hold 16.  Before a group's lane loop, the same group of the
-block ``PREFETCH_BLOCKS_AHEAD`` further on is fetched into L2 (``prefetch_rows``): the hardware
+needs a runtime alias check, so groups hold 16.  On a mesh whose rest data exceed
+``PREFETCH_FROM_BYTES``, before a group's lane loop, the same group of the block
+``PREFETCH_BLOCKS_AHEAD`` further on is fetched into L2 (``prefetch_rows``): the hardware
 prefetcher alone left the lane loop waiting on memory.  The material law in the lane loop is the
 9-tuple function of ``materials.models``, inlined; one lane loop per model keeps the law a
 compile-time choice.

@@ -40,12 +40,15 @@ from numba.extending import intrinsic
 VECTOR_BYTES = 64
 # Columns of the vertex forces ``add_corner_force`` adds into: x, y, z and a zero.
 FORCE_COLUMNS = 4
-# Bytes of a cache line (x86-64 and the Arm cores Numba targets).
+# Bytes of a cache line on x86-64 and most Arm cores (Apple's have 128: a prefetch every 64 B
+# then asks for some lines twice, which costs an instruction and nothing else).
 CACHE_LINE_BYTES = 64
 # ``llvm.prefetch`` locality: 3 keeps the line in every level (``prefetcht0``), 2 in L2 and
 # beyond (``prefetcht1``), 0 streams it past the caches (``prefetchnta``).
 PREFETCH_LOCALITY_L2 = 2
-# The name of ``llvm.prefetch`` for a byte pointer: LLVM 15 made pointers opaque (``p0``).
+# The name of ``llvm.prefetch`` for a byte pointer: ``p0i8`` with typed pointers, ``p0`` with
+# opaque ones (LLVM 15 on; llvmlite 0.44 still builds typed ones on LLVM 15, whose IR parser
+# renames the intrinsic to match).
 _PREFETCH = "llvm.prefetch.p0" if binding.llvm_version_info[0] >= 15 else "llvm.prefetch.p0i8"
 
 
