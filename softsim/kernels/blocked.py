@@ -320,6 +320,16 @@ def gather_corners(x, block_tets, b, buf):
 
 
 @njit_inline
+def group_rows(rest, g, upcoming):
+    """Group ``g``'s rest rows (10, ``GROUP``) of a block's ``rest``; with ``upcoming`` (a later
+    block's rest, or None), first fetches group ``g`` of that block into L2.  Where ``upcoming``
+    is None, Numba prunes the prefetch after inlining."""
+    if upcoming is not None:
+        prefetch_rows(upcoming[g])
+    return rest[g]
+
+
+@njit_inline
 def prefetch_rows(rows):
     """Fetch every cache line of ``rows`` (a C-contiguous view: a group's rest rows) into L2
     (``simd.prefetch_line``), ahead of the lane loop that will read them."""
@@ -374,9 +384,7 @@ def lane_store_component(buf, j, k, h1, h2, h3):
 @njit
 def stvk_block(rest, buf, lam, mu, upcoming):
     for g in range(GROUPS):
-        if upcoming is not None:
-            prefetch_rows(upcoming[g])
-        group = rest[g]
+        group = group_rows(rest, g, upcoming)
         for l in range(GROUP):
             j = g * GROUP + l
             lane_store_forces(group, l, buf, j, _stvk_first_piola(lane_deformation_gradient(group, l, buf, j), lam, mu))
@@ -385,9 +393,7 @@ def stvk_block(rest, buf, lam, mu, upcoming):
 @njit
 def neohookean_block(rest, buf, lam, mu, upcoming):
     for g in range(GROUPS):
-        if upcoming is not None:
-            prefetch_rows(upcoming[g])
-        group = rest[g]
+        group = group_rows(rest, g, upcoming)
         for l in range(GROUP):
             j = g * GROUP + l
             lane_store_forces(group, l, buf, j, _neohookean_first_piola(lane_deformation_gradient(group, l, buf, j), lam, mu))
@@ -440,9 +446,7 @@ def corotated_block(rest, buf, lam, mu, upcoming):
     the per-tet law."""
     pending = 0
     for g in range(GROUPS):
-        if upcoming is not None:
-            prefetch_rows(upcoming[g])
-        group = rest[g]
+        group = group_rows(rest, g, upcoming)
         for l in range(GROUP):
             j = g * GROUP + l
             F = lane_deformation_gradient(group, l, buf, j)
@@ -499,9 +503,7 @@ def corotated_block(rest, buf, lam, mu, upcoming):
 @njit
 def linear_block(rest, buf, lam, mu, upcoming):
     for g in range(GROUPS):
-        if upcoming is not None:
-            prefetch_rows(upcoming[g])
-        group = rest[g]
+        group = group_rows(rest, g, upcoming)
         for l in range(GROUP):
             j = g * GROUP + l
             lane_store_forces(group, l, buf, j, _linear_first_piola(lane_deformation_gradient(group, l, buf, j), lam, mu))
@@ -510,9 +512,7 @@ def linear_block(rest, buf, lam, mu, upcoming):
 @njit
 def stvk_displacement_block(rest, buf, lam, mu, upcoming):
     for g in range(GROUPS):
-        if upcoming is not None:
-            prefetch_rows(upcoming[g])
-        group = rest[g]
+        group = group_rows(rest, g, upcoming)
         for l in range(GROUP):
             j = g * GROUP + l
             lane_store_forces(group, l, buf, j, _stvk_first_piola_displacement(lane_deformation_gradient(group, l, buf, j), lam, mu))
@@ -521,9 +521,7 @@ def stvk_displacement_block(rest, buf, lam, mu, upcoming):
 @njit
 def neohookean_displacement_block(rest, buf, lam, mu, upcoming):
     for g in range(GROUPS):
-        if upcoming is not None:
-            prefetch_rows(upcoming[g])
-        group = rest[g]
+        group = group_rows(rest, g, upcoming)
         for l in range(GROUP):
             j = g * GROUP + l
             lane_store_forces(group, l, buf, j, _neohookean_first_piola_displacement(lane_deformation_gradient(group, l, buf, j), lam, mu))
@@ -532,9 +530,7 @@ def neohookean_displacement_block(rest, buf, lam, mu, upcoming):
 @njit
 def linear_displacement_block(rest, buf, lam, mu, upcoming):
     for g in range(GROUPS):
-        if upcoming is not None:
-            prefetch_rows(upcoming[g])
-        group = rest[g]
+        group = group_rows(rest, g, upcoming)
         for l in range(GROUP):
             j = g * GROUP + l
             lane_store_forces(group, l, buf, j, _linear_first_piola_displacement(lane_deformation_gradient(group, l, buf, j), lam, mu))
