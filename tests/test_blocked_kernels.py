@@ -15,7 +15,7 @@ import pytest
 
 import naive
 from softsim.integrators.symplectic_euler import advance, step_arguments, work_buffer
-from softsim.kernels.blocked import BLOCK, PREFETCH_BLOCKS_AHEAD, PREFETCH_FROM_BYTES, build_block_layout
+from softsim.kernels.blocked import BLOCK, PREFETCH_BLOCKS_AHEAD, PREFETCH_FROM_BYTES, build_block_layout, first_uses
 from softsim.kernels.rest_state import rest_state, vertex_tet_csr
 from softsim.materials.models import MODEL_IDS, model_lame_parameters
 from softsim.mesh.generate import structured_box
@@ -130,19 +130,44 @@ def test_blocked_forces_are_bitwise_deterministic_on_any_thread_count(scatter):
     assert np.abs(f1.sum(axis=0)).max() < 1e-9 * np.abs(f1).max()     # Newton's third law
 
 
+def with_prefetch(layout, ahead, node_count):
+    """``layout`` as a large mesh's: fetching rest data and first-used vertex rows ``ahead`` blocks ahead."""
+    first_offsets, first_vertices = first_uses(layout.tets, layout.part_offsets, node_count)
+    return dataclasses.replace(layout, prefetch=ahead, first_offsets=first_offsets, first_vertices=first_vertices)
+
+
+@pytest.mark.parametrize("scatter", ["colour", "csr"])
 @pytest.mark.parametrize("model", ["stvk", "neohookean", "corotated", "linear"])
-def test_prefetching_the_rest_data_changes_no_bit(model):
-    """A large mesh's step fetches the rest data of later blocks into L2 (``BlockLayout.prefetch``);
-    forced onto a small mesh (whose own layout has none), it computes the same bits, up to the
-    last block, where the block ahead is clamped to the last."""
+def test_prefetching_changes_no_bit(model, scatter):
+    """A large mesh's step fetches the rest data of later blocks into L2 (``BlockLayout.prefetch``),
+    and the rows of the vertices they use first; forced onto a small mesh (whose own layout has
+    none), it computes the same bits, up to the last block, where the block ahead is clamped to
+    the last."""
     points, tets, x = mesh((9, 6, 4))
-    body = Body(points, tets, "colour")
-    assert body.blocks.prefetch is None
+    body = Body(points, tets, scatter)
+    assert body.blocks.prefetch is None and body.blocks.first_vertices.size == 0
     lam, mu = model_lame_parameters(model, E_PA, NU)
     plain = body.forces(x, model, lam, mu)
+    layout = body.blocks
     for ahead in (1, PREFETCH_BLOCKS_AHEAD):
-        body.blocks = dataclasses.replace(body.blocks, prefetch=ahead)
+        body.blocks = with_prefetch(layout, ahead, body.node_count)
+        assert body.blocks.first_vertices.size > 0
         assert body.forces(x, model, lam, mu).tobytes() == plain.tobytes()
+
+
+def test_first_uses_list_each_vertex_of_a_part_once_at_the_block_that_uses_it_first():
+    """Checked against a plain walk over each part's blocks in order."""
+    points, tets, _ = mesh((9, 6, 4))
+    layout = Body(points, tets, "colour").blocks
+    first_offsets, first_vertices = first_uses(layout.tets, layout.part_offsets, len(points))
+    assert first_vertices.dtype == np.uint32 and first_offsets[-1] == first_vertices.size
+    for p in range(layout.part_offsets.shape[0] - 1):
+        seen = set()
+        for b in range(layout.part_offsets[p], layout.part_offsets[p + 1]):
+            used = set(layout.tets[b].ravel().tolist())
+            listed = first_vertices[first_offsets[b]:first_offsets[b + 1]].tolist()
+            assert listed == sorted(used - seen)
+            seen |= used
 
 
 def test_only_meshes_whose_rest_data_outgrow_the_cache_prefetch():
@@ -150,7 +175,9 @@ def test_only_meshes_whose_rest_data_outgrow_the_cache_prefetch():
     tets_over = PREFETCH_FROM_BYTES // (10 * 8) + BLOCK
     tets = np.zeros((tets_over, 4), dtype=np.int64)
     Dm_inv, V0 = np.zeros((tets_over, 3, 3)), np.zeros(tets_over)
-    assert build_block_layout(tets, Dm_inv, V0, 1).prefetch == PREFETCH_BLOCKS_AHEAD
+    large = build_block_layout(tets, Dm_inv, V0, 1)
+    assert large.prefetch == PREFETCH_BLOCKS_AHEAD
+    assert large.first_vertices.tolist() == [0] and large.first_offsets[1] == 1     # one vertex, first used by block 0
     assert build_block_layout(tets, Dm_inv, V0, 1, dtype=np.float32).prefetch is None
     assert build_block_layout(tets[:tets_over // 2], Dm_inv[:tets_over // 2], V0[:tets_over // 2], 1).prefetch is None
 

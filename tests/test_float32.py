@@ -18,7 +18,7 @@ from softsim.materials import models
 from softsim.materials.models import DISPLACEMENT_FORM_MODELS, MODEL_IDS, model_lame_parameters
 from softsim.model import initial_state
 from softsim.simulation import prepare, step
-from test_blocked_kernels import Body, mesh
+from test_blocked_kernels import Body, mesh, with_prefetch
 
 E_PA = 1.0e6
 NU = 0.3
@@ -123,10 +123,9 @@ def test_float32_kernel_forces_match_naive_float64(model, scatter, strain):
 
 @pytest.mark.parametrize("model", DISPLACEMENT_FORM_MODELS)
 def test_float32_prefetching_changes_no_bit(model):
-    """The displacement-form lane loops with the rest data prefetched (``BlockLayout.prefetch``,
-    forced onto a mesh too small to get it) give the same bits as without."""
-    import dataclasses
-
+    """The displacement-form lane loops with the rest data and the first-used vertex rows
+    prefetched (``BlockLayout.prefetch``, forced onto a mesh too small to get it) give the same
+    bits as without."""
     from softsim.kernels.blocked import PREFETCH_BLOCKS_AHEAD
 
     points, tets, x = mesh((7, 5, 3))
@@ -134,7 +133,7 @@ def test_float32_prefetching_changes_no_bit(model):
     assert body.blocks.prefetch is None
     lam, mu = model_lame_parameters(model, E_PA, NU)
     plain = float32_forces(body, x - points, model, lam, mu)
-    body.blocks = dataclasses.replace(body.blocks, prefetch=PREFETCH_BLOCKS_AHEAD)
+    body.blocks = with_prefetch(body.blocks, PREFETCH_BLOCKS_AHEAD, body.node_count)
     assert float32_forces(body, x - points, model, lam, mu).tobytes() == plain.tobytes()
 
 

@@ -24,7 +24,7 @@ gathered per vertex: ``kernels.blocked`` ``scatter='csr'``).
 import numpy as np
 from numba import prange
 
-from ..kernels.blocked import BLOCK, ROWS, block_forces, scatter_block, store_block_corners
+from ..kernels.blocked import BLOCK, ROWS, block_forces, prefetch_vertex_rows, scatter_block, store_block_corners
 from ..kernels.forces import gather_vertex_force
 from ..kernels.jit import njit, njit_inline, njit_parallel
 from ..kernels.simd import FORCE_COLUMNS
@@ -171,6 +171,7 @@ def block_range_forces(x, rest, blocks, first, stop, model, lam, mu, scatter, ve
     prefetch = blocks[7]
     buf = np.empty(ROWS * BLOCK, dtype=block_rest.dtype)
     for b in range(first, stop):
+        prefetch_vertex_rows(x, vertex_forces, blocks[8], blocks[9], b, prefetch)
         block_forces(x, block_tets, block_rest, b, model, lam, mu, buf, rest, prefetch)
         lane_count = min(BLOCK, tet_count - b * BLOCK)
         if scatter:
@@ -190,7 +191,7 @@ def advance(x, rest, v, step_start, step_count, dt,
     from them (and ``held_start`` too).  Every array and scalar is in the precision of ``x``.
     step_start: index of the first step (time ``step_start * dt`` [s]); dt [s].
     blocks: ``(block_tets, block_rest, tet_count, part_offsets, colour_parts, owned_offsets, owned,
-    prefetch)`` of a ``kernels.blocked.BlockLayout``; colour_offsets: (colours + 1,) into colour_parts; model
+    prefetch, first_offsets, first_vertices)`` of a ``kernels.blocked.BlockLayout``; colour_offsets: (colours + 1,) into colour_parts; model
     id, Lame lam, mu [Pa].
     scatter True: the forces are added into ``vertex_forces`` (node_count, 4: x, y, z and a zero,
     ``kernels.simd.FORCE_COLUMNS``), one colour of parts
@@ -271,7 +272,7 @@ def step_arguments(model, work):
     if flat.size < needed:
         raise ValueError(f"work buffer of {flat.size} floats, the {layout.scatter} scatter needs {needed}")
     blocks = (layout.tets, layout.rest, layout.tet_count, layout.part_offsets, layout.colour_parts,
-              layout.owned_offsets, layout.owned, layout.prefetch)
+              layout.owned_offsets, layout.owned, layout.prefetch, layout.first_offsets, layout.first_vertices)
     if layout.scatter == "colour":
         vertex_forces = flat[:FORCE_COLUMNS * n].reshape(n, FORCE_COLUMNS)
         corner_forces = np.empty((0, 4, 3), dtype=flat.dtype)

@@ -24,7 +24,9 @@ block's rest data is read nearly in address order.  Streaming such rows from mem
 needs a runtime alias check, so groups hold 16.  On a mesh whose rest data exceed
 ``PREFETCH_FROM_BYTES``, before a group's lane loop, the same group of the block
 ``PREFETCH_BLOCKS_AHEAD`` further on is fetched into L2 (``prefetch_rows``): the hardware
-prefetcher alone left the lane loop waiting on memory.  The material law in the lane loop is the
+prefetcher alone left the lane loop waiting on memory.  So are, before each block, the rows of
+``x`` and of the vertex forces of the vertices that block uses first (``first_uses``,
+``prefetch_vertex_rows``): the gather and the scatter waited on them too.  The material law in the lane loop is the
 9-tuple function of ``materials.models``, inlined; one lane loop per model keeps the law a
 compile-time choice.
 
@@ -95,6 +97,12 @@ STAGE_JACOBI = 2.0         # the Jacobi SVD to take (det F <= 0, or Newton did n
 # stay in cache, the prefetches cost more than they save: they are compiled out below the threshold
 # (``BlockLayout.prefetch``).  The same prefetches issued all at once at the start of a block gained
 # 1.14x at 1M; into L1 (``prefetcht0``) they lost 6-12 %.
+# The rows of the vertices a block uses first in its part (``first_uses``: about 14 a block on the
+# beam, 0.2 a tet) are fetched as far ahead, before the block (``prefetch_vertex_rows``): a scatter
+# of the 1M beam's forces alone, one thread, took 6.7 ns a tet without, 5.0 with (3.5 with its
+# data in cache); the whole step, 2 threads, against the rest data prefetched alone, 3-4
+# alternating processes: 1.16-1.29 at 1M, 1.25 at 2M, 1.01-1.31 at 310k.  All corner rows of the
+# block ahead (256 prefetches a block, not 28) lost 8-11 %.
 PREFETCH_BLOCKS_AHEAD = 2
 PREFETCH_FROM_BYTES = 8 * 2**20
 
@@ -136,7 +144,10 @@ class BlockLayout:
     (part_count,): parts grouped by colour; owned_offsets (part_count + 1,), owned (node_count,)
     int64: the vertices part p moves, ``owned[owned_offsets[p]:owned_offsets[p + 1]]`` (see
     ``vertex_owners``); scatter: ``"colour"`` or ``"csr"``; prefetch: how many blocks ahead the step
-    fetches rest data into L2 (``PREFETCH_BLOCKS_AHEAD``), or None: not at all (a small mesh).
+    fetches rest data into L2 (``PREFETCH_BLOCKS_AHEAD``), or None: not at all (a small mesh);
+    first_offsets (block_count + 1,) int64, first_vertices uint32: the vertices block b is the
+    first of its part to use, ``first_vertices[first_offsets[b]:first_offsets[b + 1]]``, whose
+    rows the step fetches as far ahead (``first_uses``; empty when ``prefetch`` is None).
     """
 
     tets: np.ndarray
@@ -149,6 +160,8 @@ class BlockLayout:
     owned: np.ndarray
     scatter: str
     prefetch: int | None
+    first_offsets: np.ndarray
+    first_vertices: np.ndarray
 
     @property
     def colour_count(self):
@@ -166,9 +179,14 @@ def build_block_layout(tets, Dm_inv, rest_volume, node_count, scatter=None, slab
     if scatter is None:
         scatter = "colour"
     prefetch = PREFETCH_BLOCKS_AHEAD if block_rest.nbytes > PREFETCH_FROM_BYTES else None
+    if prefetch is None:
+        first_offsets, first_vertices = np.zeros(block_tets.shape[0] + 1, dtype=np.int64), np.empty(0, np.uint32)
+    else:
+        first_offsets, first_vertices = first_uses(block_tets, part_offsets, node_count)
     return BlockLayout(tets=block_tets, rest=block_rest, tet_count=int(tets.shape[0]), part_offsets=part_offsets,
                        colour_offsets=colour_offsets, colour_parts=colour_parts, owned_offsets=owned_offsets,
-                       owned=owned, scatter=scatter, prefetch=prefetch)
+                       owned=owned, scatter=scatter, prefetch=prefetch, first_offsets=first_offsets,
+                       first_vertices=first_vertices)
 
 
 def slab_parts(block_tets, node_count, slabs=SLABS):
@@ -181,6 +199,24 @@ def slab_parts(block_tets, node_count, slabs=SLABS):
     slab = np.maximum.accumulate(first_vertex * slabs // max(node_count, 1))
     starts = np.searchsorted(slab, np.arange(slabs), side="left")
     return np.unique(np.append(starts, block_tets.shape[0])).astype(np.int64)
+
+
+def first_uses(block_tets, part_offsets, node_count):
+    """``(first_offsets, first_vertices)``: the vertices each block is the first of its part to use
+    (the part's blocks taken in order), block b's ``first_vertices[first_offsets[b]:first_offsets[b + 1]]``,
+    increasing.  Later blocks of the part find these vertices' rows in cache; the first one does not,
+    and nor does the hardware prefetcher find them (Morton order within thin slabs, ``mesh.reorder``):
+    the step fetches them ahead (``prefetch_vertex_rows``).  About 14 a block on the beam."""
+    block_count = block_tets.shape[0]
+    block_part = np.repeat(np.arange(part_offsets.shape[0] - 1), np.diff(part_offsets))
+    corners = block_tets.reshape(block_count, 4 * BLOCK).astype(np.int64)
+    _, first = np.unique((block_part[:, None] * node_count + corners).ravel(), return_index=True)
+    block = first // (4 * BLOCK)
+    vertex = corners.ravel()[first]
+    order = np.lexsort((vertex, block))
+    first_offsets = np.zeros(block_count + 1, dtype=np.int64)
+    np.cumsum(np.bincount(block, minlength=block_count), out=first_offsets[1:])
+    return first_offsets, vertex[order].astype(np.uint32)
 
 
 def block_layout(tets, Dm_inv, rest_volume, dtype=np.float64):
@@ -327,6 +363,21 @@ def group_rows(rest, g, upcoming):
     if upcoming is not None:
         prefetch_rows(upcoming[g])
     return rest[g]
+
+
+@njit
+def prefetch_vertex_rows(x, vertex_forces, first_offsets, first_vertices, b, prefetch):
+    """Fetch the rows of ``x`` (n, 3) and of ``vertex_forces`` (n, ``FORCE_COLUMNS``, or empty: not
+    those) of the vertices that block ``b + prefetch`` (the last block at most) uses first in its
+    part (``first_uses``) into L2; nothing where ``prefetch`` is None (pruned by Numba)."""
+    if prefetch is None:
+        return
+    ahead = min(b + prefetch, first_offsets.shape[0] - 2)
+    for q in range(first_offsets[ahead], first_offsets[ahead + 1]):
+        i = np.int64(first_vertices[q])
+        prefetch_line(x, i * 3)
+        if vertex_forces.shape[0] > 0:
+            prefetch_line(vertex_forces, i * FORCE_COLUMNS)
 
 
 @njit_inline
