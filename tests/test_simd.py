@@ -110,3 +110,21 @@ def test_prefetch_line_is_an_l2_prefetch_and_nothing_else(dtype):
 def test_prefetch_line_takes_only_contiguous_arrays():
     with pytest.raises(numba.TypingError):
         prefetch_every_line(np.zeros((10, 16))[:, ::2], 8)
+
+
+def test_the_step_prefetches_first_used_vertex_rows_only_when_asked():
+    """``blocked.prefetch_vertex_rows`` compiles to L2 prefetches of the rows of ``x`` and of the
+    vertex forces when the layout prefetches (an int: how far ahead), and to nothing at all when
+    it does not (None: Numba prunes the loop), and leaves the arrays as they were."""
+    from softsim.kernels.blocked import prefetch_vertex_rows
+
+    rows = numba.njit(prefetch_vertex_rows.py_func)         # a fresh dispatcher: its machine code can be read
+    x, forces = np.ones((6, 3)), np.ones((6, FORCE_COLUMNS))
+    first_offsets, first_vertices = np.array([0, 2, 3, 5]), np.array([0, 4, 1, 2, 5], dtype=np.uint32)
+    for ahead in (1, None):
+        rows(x, forces, first_offsets, first_vertices, 0, ahead)
+    assert (x == 1).all() and (forces == 1).all()
+    if platform.machine() in ("x86_64", "AMD64"):
+        with_ahead, without = (rows.inspect_asm(sig) for sig in rows.signatures)
+        assert with_ahead.count("prefetcht1") >= 2
+        assert "prefetcht" not in without

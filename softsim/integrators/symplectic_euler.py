@@ -191,8 +191,8 @@ def advance(x, rest, v, step_start, step_count, dt,
     from them (and ``held_start`` too).  Every array and scalar is in the precision of ``x``.
     step_start: index of the first step (time ``step_start * dt`` [s]); dt [s].
     blocks: ``(block_tets, block_rest, tet_count, part_offsets, colour_parts, owned_offsets, owned,
-    prefetch, first_offsets, first_vertices)`` of a ``kernels.blocked.BlockLayout``; colour_offsets: (colours + 1,) into colour_parts; model
-    id, Lame lam, mu [Pa].
+    prefetch, first_offsets, first_vertices)`` of a ``kernels.blocked.BlockLayout``; colour_offsets:
+    (colours + 1,) into colour_parts; model id, Lame lam, mu [Pa].
     scatter True: the forces are added into ``vertex_forces`` (node_count, 4: x, y, z and a zero,
     ``kernels.simd.FORCE_COLUMNS``), one colour of parts
     at a time, its parts in parallel; False: stored into ``corner_forces`` (tet_count, 4, 3) and

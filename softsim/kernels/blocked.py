@@ -25,10 +25,10 @@ needs a runtime alias check, so groups hold 16.  On a mesh whose rest data excee
 ``PREFETCH_FROM_BYTES``, before a group's lane loop, the same group of the block
 ``PREFETCH_BLOCKS_AHEAD`` further on is fetched into L2 (``prefetch_rows``): the hardware
 prefetcher alone left the lane loop waiting on memory.  So are, before each block, the rows of
-``x`` and of the vertex forces of the vertices that block uses first (``first_uses``,
-``prefetch_vertex_rows``): the gather and the scatter waited on them too.  The material law in the lane loop is the
-9-tuple function of ``materials.models``, inlined; one lane loop per model keeps the law a
-compile-time choice.
+``x`` and of the vertex forces of the vertices that the block as far ahead is the first of its
+part to use (``first_uses``, ``prefetch_vertex_rows``): the gather and the scatter waited on them
+too.  The material law in the lane loop is the 9-tuple function of ``materials.models``,
+inlined; one lane loop per model keeps the law a compile-time choice.
 
 Forces (Sifakis & Barbic 2012, section 4.3): ``H = -V0 P(F) Dm^-T``; its columns are the forces on
 corners 1, 2, 3 and ``f0 = -(h1 + h2 + h3)``, exactly as ``forces.tet_corner_forces`` computes them.
