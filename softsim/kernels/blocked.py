@@ -365,6 +365,13 @@ def group_rows(rest, g, upcoming):
     return rest[g]
 
 
+@njit_inline
+def block_ahead(b, prefetch, block_count):
+    """The block whose data the step fetches while it computes block ``b``: ``prefetch`` blocks on,
+    the last block at most (both prefetches, ``block_forces`` and ``prefetch_vertex_rows``)."""
+    return min(b + prefetch, block_count - 1)
+
+
 @njit
 def prefetch_vertex_rows(x, vertex_forces, first_offsets, first_vertices, b, prefetch):
     """Fetch the rows of ``x`` (n, 3) and of ``vertex_forces`` (n, ``FORCE_COLUMNS``, or empty: not
@@ -372,7 +379,7 @@ def prefetch_vertex_rows(x, vertex_forces, first_offsets, first_vertices, b, pre
     part (``first_uses``) into L2; nothing where ``prefetch`` is None (pruned by Numba)."""
     if prefetch is None:
         return
-    ahead = min(b + prefetch, first_offsets.shape[0] - 2)
+    ahead = block_ahead(b, prefetch, first_offsets.shape[0] - 1)
     for q in range(first_offsets[ahead], first_offsets[ahead + 1]):
         i = np.int64(first_vertices[q])
         prefetch_line(x, i * 3)
@@ -612,7 +619,7 @@ def block_forces(x, block_tets, block_rest, b, model, lam, mu, buf, rest, prefet
     if prefetch is None:
         model_forces(block_rest[b], buf, model, lam, mu, rest, None)
     else:
-        model_forces(block_rest[b], buf, model, lam, mu, rest, block_rest[min(b + prefetch, block_rest.shape[0] - 1)])
+        model_forces(block_rest[b], buf, model, lam, mu, rest, block_rest[block_ahead(b, prefetch, block_rest.shape[0])])
 
 
 @njit
