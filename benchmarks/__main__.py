@@ -6,7 +6,8 @@ Measures, on this machine: throughput against tet count (10k to 2M) with the pee
 Warp CPU, when ``pip install ".[peers]"`` is installed) and the STREAM-triad bandwidth bound
 interleaved in one process; 1 against 2 threads; each material model; each optional feature; the
 time outside the kernels at a frame interval; peak memory per tet; start-up with a cold and a warm
-JIT cache; the Numba threading layers; packed SIMD instructions in the compiled lane loops.
+JIT cache; the Numba threading layers; packed SIMD instructions in the compiled lane loops; what
+the software prefetches buy on the large meshes.
 Peers are first checked to compute the same positions.
 Writes ``results.csv``, ``results.md`` and ``throughput.png`` into the output folder.
 Numbers move with the machine and its load: compare only within one run.
@@ -33,7 +34,7 @@ def main(argv=None):
     parser.add_argument("--repeats", type=int, help="interleaved rounds per measurement (default 7, quick 3)")
     parser.add_argument("--sections", nargs="+", help="run only these sections",
                         choices=["check", "throughput", "threads", "models", "features", "overhead", "memory",
-                                 "startup", "layers", "simd", "precision"])
+                                 "startup", "layers", "simd", "precision", "prefetch"])
     args = parser.parse_args(argv)
 
     quick = args.quick
@@ -66,6 +67,7 @@ def main(argv=None):
         ("layers", lambda: suite.threading_layers(mid, seconds, 1 if quick else 3)),
         ("simd", suite.simd),
         ("precision", lambda: suite.precision(mid, 100_000 if quick else 1_000_000, seconds, repeats, threads)),
+        ("prefetch", lambda: suite.prefetch([s for s in sizes if s >= 300_000] or sizes[-1:], seconds, repeats, threads)),
     ]
     for name, run in sections:
         if not on(name):
