@@ -93,16 +93,20 @@ STAGE_JACOBI = 2.0         # the Jacobi SVD to take (det F <= 0, or Newton did n
 #     1 block ahead, L2         0.90    0.98    1.07    1.25
 #     2 blocks ahead, L2        0.91    0.98    1.11    1.17
 #     1 / 2 / 4 ahead, NTA      0.85-0.87  0.96-1.02  0.96-1.02  1.12-1.13
-# (another run, 2 ahead, L2: 0.94, 0.92, 1.41, 1.13 and 1.09 at 2M).  On a small mesh, whose data
+# (another run, 2 ahead, L2: 0.94, 0.92, 1.41, 1.13 and 1.09 at 2M).  Timed in one process, the
+# same compiled step on the same mesh (``python -m benchmarks``, section ``prefetch``), 2 ahead
+# against none: 1.43 at 310k, 1.16 at 1M, 1.24 at 2M; from process to process the same code varied
+# by up to 1.5x at 1M, so one-process numbers are the ones to trust.  On a small mesh, whose data
 # stay in cache, the prefetches cost more than they save: they are compiled out below the threshold
 # (``BlockLayout.prefetch``).  The same prefetches issued all at once at the start of a block gained
 # 1.14x at 1M; into L1 (``prefetcht0``) they lost 6-12 %.
 # The rows of the vertices a block uses first in its part (``first_uses``: about 14 a block on the
 # beam, 0.2 a tet) are fetched as far ahead, before the block (``prefetch_vertex_rows``): a scatter
 # of the 1M beam's forces alone, one thread, took 6.7 ns a tet without, 5.0 with (3.5 with its
-# data in cache); the whole step, 2 threads, against the rest data prefetched alone, 3-4
-# alternating processes: 1.16-1.29 at 1M, 1.25 at 2M, 1.01-1.31 at 310k.  All corner rows of the
-# block ahead (256 prefetches a block, not 28) lost 8-11 %.
+# data in cache); the whole step, 2 threads, against the rest data prefetched alone, in one
+# process: 1.09 at 310k, 1.19 at 1M, 1.16 at 2M (other runs: 1.03, 1.08-1.12, 1.18-1.25).  All corner
+# rows of the block ahead (256 prefetches a block, not 28) lost 8-11 %; the corner indices of the
+# block ahead, or the vertices a part reuses after more than 64 blocks, gained nothing.
 PREFETCH_BLOCKS_AHEAD = 2
 PREFETCH_FROM_BYTES = 8 * 2**20
 
