@@ -95,8 +95,9 @@ STAGE_JACOBI = 2.0         # the Jacobi SVD to take (det F <= 0, or Newton did n
 #     1 / 2 / 4 ahead, NTA      0.85-0.87  0.96-1.02  0.96-1.02  1.12-1.13
 # (another run, 2 ahead, L2: 0.94, 0.92, 1.41, 1.13 and 1.09 at 2M).  Timed in one process, the
 # same compiled step on the same mesh (``python -m benchmarks``, section ``prefetch``), 2 ahead
-# against none: 1.43 at 310k, 1.16 at 1M, 1.24 at 2M; from process to process the same code varied
-# by up to 1.5x at 1M, so one-process numbers are the ones to trust.  On a small mesh, whose data
+# against none: 1.43 at 310k, 1.16 at 1M, 1.24 at 2M; 1, 3 or 4 ahead against 2: 0.98, 1.00, 0.91
+# at 1M, 1.04, 1.02, 1.07 at 2M, 0.99, 0.93, 0.95 at 310k.  From process to process the same code
+# varied by up to 1.5x at 1M, so one-process numbers are the ones to trust.  On a small mesh, whose data
 # stay in cache, the prefetches cost more than they save: they are compiled out below the threshold
 # (``BlockLayout.prefetch``).  The same prefetches issued all at once at the start of a block gained
 # 1.14x at 1M; into L1 (``prefetcht0``) they lost 6-12 %.
