@@ -137,21 +137,17 @@ def prefetch(sizes, seconds, repeats, threads):
     process.  The variants differ only in the layout's ``prefetch`` and first-use lists (the step
     compiles once with a distance, once without).  Comparing separate processes instead overstated
     the gains here: the same code ran from 75 to 111 M tet-steps/s at 1M from process to process."""
-    from softsim.kernels.blocked import PREFETCH_BLOCKS_AHEAD, first_uses
+    from softsim.kernels.blocked import PREFETCH_BLOCKS_AHEAD, prefetching
 
     rows = []
     for target in sizes:
         prepared = prepared_beam(target)
-        layout = prepared.model.blocks
-        offsets, vertices = first_uses(layout.tets, layout.part_offsets, prepared.model.node_count)
-        no_rows = dict(first_offsets=np.zeros_like(offsets), first_vertices=vertices[:0])
-        with_rows = dict(first_offsets=offsets, first_vertices=vertices)
-        variants = dict(zip(PREFETCH_VARIANTS, (dict(prefetch=None, **no_rows),
-                                                dict(prefetch=PREFETCH_BLOCKS_AHEAD, **no_rows),
-                                                dict(prefetch=PREFETCH_BLOCKS_AHEAD, **with_rows))))
-        runners = {name: Softsim(dataclasses.replace(prepared, model=dataclasses.replace(
-                       prepared.model, blocks=dataclasses.replace(layout, **changes))))
-                   for name, changes in variants.items()}
+        layout, n = prepared.model.blocks, prepared.model.node_count
+        variants = dict(zip(PREFETCH_VARIANTS, (prefetching(layout, n, None),
+                                                prefetching(layout, n, PREFETCH_BLOCKS_AHEAD, vertex_rows=False),
+                                                prefetching(layout, n, PREFETCH_BLOCKS_AHEAD))))
+        runners = {name: Softsim(dataclasses.replace(prepared, model=dataclasses.replace(prepared.model, blocks=blocks)))
+                   for name, blocks in variants.items()}
         rates = interleaved(runners, seconds, repeats)
         tets = runners["none"].tet_count
         default = PREFETCH_VARIANTS[0 if layout.prefetch is None else -1]

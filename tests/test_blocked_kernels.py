@@ -15,7 +15,7 @@ import pytest
 
 import naive
 from softsim.integrators.symplectic_euler import advance, step_arguments, work_buffer
-from softsim.kernels.blocked import BLOCK, PREFETCH_BLOCKS_AHEAD, PREFETCH_FROM_BYTES, build_block_layout, first_uses
+from softsim.kernels.blocked import BLOCK, PREFETCH_BLOCKS_AHEAD, PREFETCH_FROM_BYTES, build_block_layout, first_uses, prefetching
 from softsim.kernels.rest_state import rest_state, vertex_tet_csr
 from softsim.materials.models import MODEL_IDS, model_lame_parameters
 from softsim.mesh.generate import structured_box
@@ -132,8 +132,7 @@ def test_blocked_forces_are_bitwise_deterministic_on_any_thread_count(scatter):
 
 def with_prefetch(layout, ahead, node_count):
     """``layout`` as a large mesh's: fetching rest data and first-used vertex rows ``ahead`` blocks ahead."""
-    first_offsets, first_vertices = first_uses(layout.tets, layout.part_offsets, node_count)
-    return dataclasses.replace(layout, prefetch=ahead, first_offsets=first_offsets, first_vertices=first_vertices)
+    return prefetching(layout, node_count, ahead)
 
 
 @pytest.mark.parametrize("scatter", ["colour", "csr"])
@@ -180,6 +179,22 @@ def test_only_meshes_whose_rest_data_outgrow_the_cache_prefetch():
     assert large.first_vertices.tolist() == [0] and large.first_offsets[1] == 1     # one vertex, first used by block 0
     assert build_block_layout(tets, Dm_inv, V0, 1, dtype=np.float32).prefetch is None
     assert build_block_layout(tets[:tets_over // 2], Dm_inv[:tets_over // 2], V0[:tets_over // 2], 1).prefetch is None
+
+
+def test_prefetching_sets_the_distance_and_lists_the_first_uses_only_with_vertex_rows():
+    """``prefetching`` forces a layout's prefetch on or off; the first-use lists come only with a
+    distance and ``vertex_rows``, else they are empty (nothing to fetch, one offset per block)."""
+    points, tets, _ = mesh((9, 6, 4))
+    layout = Body(points, tets, "colour").blocks
+    blocks = layout.tets.shape[0]
+    full = prefetching(layout, len(points), 2)
+    expected = first_uses(layout.tets, layout.part_offsets, len(points))
+    assert full.prefetch == 2
+    assert full.first_offsets.tolist() == expected[0].tolist() and full.first_vertices.tolist() == expected[1].tolist()
+    for ahead, rows in ((2, False), (None, True)):
+        bare = prefetching(full, len(points), ahead, vertex_rows=rows)
+        assert bare.prefetch == ahead and bare.first_vertices.size == 0
+        assert bare.first_offsets.shape == (blocks + 1,) and not bare.first_offsets.any()
 
 
 def test_small_meshes_step_on_fewer_threads():

@@ -43,6 +43,7 @@ so it computes finite zero forces and the scatter skips it.
 """
 
 import math
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -183,15 +184,26 @@ def build_block_layout(tets, Dm_inv, rest_volume, node_count, scatter=None, slab
     owned_offsets, owned = vertex_owners(block_tets, tets.shape[0], node_count, part_offsets, colour_parts)
     if scatter is None:
         scatter = "colour"
-    prefetch = PREFETCH_BLOCKS_AHEAD if block_rest.nbytes > PREFETCH_FROM_BYTES else None
-    if prefetch is None:
-        first_offsets, first_vertices = np.zeros(block_tets.shape[0] + 1, dtype=np.int64), np.empty(0, np.uint32)
+    layout = BlockLayout(tets=block_tets, rest=block_rest, tet_count=int(tets.shape[0]), part_offsets=part_offsets,
+                         colour_offsets=colour_offsets, colour_parts=colour_parts, owned_offsets=owned_offsets,
+                         owned=owned, scatter=scatter, prefetch=None,
+                         first_offsets=np.zeros(block_tets.shape[0] + 1, dtype=np.int64),
+                         first_vertices=np.empty(0, np.uint32))
+    if block_rest.nbytes > PREFETCH_FROM_BYTES:
+        return prefetching(layout, node_count, PREFETCH_BLOCKS_AHEAD)
+    return layout
+
+
+def prefetching(layout, node_count, ahead, vertex_rows=True):
+    """``layout`` fetching the rest data ``ahead`` blocks ahead (None: not at all) and, with
+    ``vertex_rows``, the rows of the vertices each block as far ahead uses first (``first_uses``;
+    without: empty lists).  ``build_block_layout`` asks for it above ``PREFETCH_FROM_BYTES``; tests
+    and benchmarks force it on or off."""
+    if ahead is not None and vertex_rows:
+        first_offsets, first_vertices = first_uses(layout.tets, layout.part_offsets, node_count)
     else:
-        first_offsets, first_vertices = first_uses(block_tets, part_offsets, node_count)
-    return BlockLayout(tets=block_tets, rest=block_rest, tet_count=int(tets.shape[0]), part_offsets=part_offsets,
-                       colour_offsets=colour_offsets, colour_parts=colour_parts, owned_offsets=owned_offsets,
-                       owned=owned, scatter=scatter, prefetch=prefetch, first_offsets=first_offsets,
-                       first_vertices=first_vertices)
+        first_offsets, first_vertices = np.zeros(layout.tets.shape[0] + 1, dtype=np.int64), np.empty(0, np.uint32)
+    return dataclasses.replace(layout, prefetch=ahead, first_offsets=first_offsets, first_vertices=first_vertices)
 
 
 def slab_parts(block_tets, node_count, slabs=SLABS):
