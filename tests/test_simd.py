@@ -10,7 +10,14 @@ import pytest
 
 from softsim.kernels.blocked import BLOCK, ROW_F, ROW_X, ROWS, gather_corners, scatter_block
 from softsim.kernels.jit import njit
-from softsim.kernels.simd import FORCE_COLUMNS, add_corner_force, gather_corner_rows, prefetch_line
+from softsim.kernels.simd import (
+    FORCE_COLUMNS,
+    PREFERRED_VECTOR_BITS,
+    add_corner_force,
+    gather_corner_rows,
+    prefer_wide_vectors,
+    prefetch_line,
+)
 
 
 @njit
@@ -128,3 +135,36 @@ def test_the_step_prefetches_first_used_vertex_rows_only_when_asked():
         with_ahead, without = (rows.inspect_asm(sig) for sig in rows.signatures)
         assert with_ahead.count("prefetcht1") >= 2
         assert "prefetcht" not in without
+
+
+def _axpy_loop(a, b, out):
+    for i in range(out.size):
+        out[i] = a[i] * b[i] + out[i]
+
+
+def _wide_axpy_loop(a, b, out):
+    prefer_wide_vectors()
+    for i in range(out.size):
+        out[i] = a[i] * b[i] + out[i]
+
+
+def test_prefer_wide_vectors_lets_the_vectoriser_use_the_widest_registers():
+    """A function calling ``prefer_wide_vectors`` carries LLVM's ``"prefer-vector-width"="512"``
+    attribute (one that does not, none), and on a host with AVX-512 its loop compiles to zmm
+    registers, where LLVM's tuning for Intel's AVX-512 cores would otherwise keep it to ymm."""
+    from llvmlite import binding
+
+    plain, wide = numba.njit(_axpy_loop), numba.njit(_wide_axpy_loop)     # fresh: their code can be read
+    a, b = np.arange(100.0), np.full(100, 2.0)
+    results = []
+    for fn in (plain, wide):
+        out = np.ones(100)
+        fn(a, b, out)
+        results.append(out)
+    np.testing.assert_array_equal(results[0], results[1])
+    np.testing.assert_array_equal(results[1], 2 * a + 1)
+    attribute = f'"prefer-vector-width"="{PREFERRED_VECTOR_BITS}"'
+    assert attribute in wide.inspect_llvm(wide.signatures[0])
+    assert "prefer-vector-width" not in plain.inspect_llvm(plain.signatures[0])
+    if "+avx512f" in binding.get_host_cpu_features().flatten():
+        assert "zmm" in wide.inspect_asm(wide.signatures[0])

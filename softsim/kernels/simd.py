@@ -32,6 +32,7 @@ prefetch never faults, but its callers keep it inside the array too.
 """
 
 from llvmlite import binding, ir
+from llvmlite.ir.values import FunctionAttributes
 from numba import types
 from numba.extending import intrinsic
 
@@ -170,6 +171,43 @@ def prefetch_line(typingctx, a, index):
             builder.module, ir.FunctionType(ir.VoidType(), [i8_ptr, i32, i32, i32]), _PREFETCH)
         builder.call(prefetch, [builder.bitcast(address, i8_ptr), ir.Constant(i32, 0),
                                 ir.Constant(i32, PREFETCH_LOCALITY_L2), ir.Constant(i32, 1)])
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+# The vector width LLVM's loop vectoriser may choose in a function that calls
+# ``prefer_wide_vectors``: its "prefer-vector-width" attribute.
+PREFERRED_VECTOR_BITS = 512
+
+
+class _PreferredVectorWidth(FunctionAttributes):
+    """A function's attributes plus ``"prefer-vector-width"``, which llvmlite has no word for."""
+
+    def __bool__(self):
+        return True
+
+    def _to_list(self, ret_type):
+        return super()._to_list(ret_type) + [f'"prefer-vector-width"="{PREFERRED_VECTOR_BITS}"']
+
+
+@intrinsic
+def prefer_wide_vectors(typingctx):
+    """Let LLVM vectorise the loops of the calling function with ``PREFERRED_VECTOR_BITS``-bit
+    vectors.  LLVM's tuning for Intel's AVX-512 cores (Skylake-X to Sapphire Rapids) prefers
+    256-bit vectors to avoid lowering the clock, so the lane loops compiled to ymm on them (zmm on
+    AMD Zen 4); a function attribute overrides the preference for that function only."""
+    sig = types.void()
+
+    def codegen(context, builder, signature, args):
+        function = builder.function
+        if not isinstance(function.attributes, _PreferredVectorWidth):
+            attributes = _PreferredVectorWidth()
+            for name in function.attributes:
+                attributes.add(name)
+            attributes.alignstack = function.attributes.alignstack
+            attributes.personality = function.attributes.personality
+            function.attributes = attributes
         return context.get_dummy_value()
 
     return sig, codegen
