@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from softsim.kernels.blocked import BLOCK, ROW_F, ROW_X, ROWS, gather_corners, scatter_block
+from softsim.kernels import simd
 from softsim.kernels.jit import njit
 from softsim.kernels.simd import (
     FORCE_COLUMNS,
@@ -31,13 +32,23 @@ def add_forces(forces, vertices, buf, row_stride):
         add_corner_force(forces, vertices[j], buf, j, row_stride)
 
 
+def gather_rows_compiled(monkeypatch, by_transpose):
+    """A fresh ``gather_rows`` whose gather compiles one way or the other (both are correct on
+    every target; ``simd.gather_by_transpose`` picks the faster one for the target)."""
+    monkeypatch.setattr(simd, "GATHER_BY_TRANSPOSE", by_transpose)
+    return numba.njit(gather_rows.py_func)
+
+
+@pytest.mark.parametrize("by_transpose", [False, True])
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
-def test_gather_corner_rows_is_fancy_indexing(dtype):
+def test_gather_corner_rows_is_fancy_indexing(dtype, by_transpose, monkeypatch):
+    gather = gather_rows_compiled(monkeypatch, by_transpose)
     rng = np.random.default_rng(1)
     x = rng.standard_normal((50, 3)).astype(dtype)
     tets = rng.integers(0, 50, size=(3, 40)).astype(np.uint32)
+    tets.reshape(-1)[60] = 49                    # the last vertex: its row ends the array
     buf = np.full(200, np.nan, dtype=dtype)
-    gather_rows(x, tets, 45, buf, 7)             # lanes 45..76 of the flat tets, from buf[7]
+    gather(x, tets, 45, buf, 7)                  # lanes 45..76 of the flat tets, from buf[7]
     lanes = tets.reshape(-1)[45:77]
     expected = x[lanes].T                        # (3, 32): row k holds component k
     np.testing.assert_array_equal(buf[7:7 + 96].reshape(3, 32), expected)
@@ -135,6 +146,40 @@ def test_the_step_prefetches_first_used_vertex_rows_only_when_asked():
         with_ahead, without = (rows.inspect_asm(sig) for sig in rows.signatures)
         assert with_ahead.count("prefetcht1") >= 2
         assert "prefetcht" not in without
+
+
+@pytest.mark.skipif(platform.system() != "Linux", reason="maps a guard page with Linux's mmap and mprotect")
+@pytest.mark.parametrize("by_transpose", [False, True])
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_gather_reads_nothing_past_the_last_vertex(dtype, by_transpose, monkeypatch):
+    """The last vertex's row ends where unreadable memory begins (a guard page): the transposing
+    gather loads rows of four values with the fourth masked off, so it neither faults there nor
+    reads past ``x`` (a fault would end the test process)."""
+    import ctypes
+    import mmap
+
+    gather = gather_rows_compiled(monkeypatch, by_transpose)
+    libc = ctypes.CDLL(None, use_errno=True)
+    libc.mmap.restype = ctypes.c_void_p
+    libc.mmap.argtypes = [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_int, ctypes.c_int, ctypes.c_int, ctypes.c_long]
+    libc.mprotect.argtypes = [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_int]
+    libc.munmap.argtypes = [ctypes.c_void_p, ctypes.c_size_t]
+    page = mmap.PAGESIZE
+    base = libc.mmap(None, 2 * page, mmap.PROT_READ | mmap.PROT_WRITE, mmap.MAP_PRIVATE | mmap.MAP_ANONYMOUS, -1, 0)
+    assert base not in (None, ctypes.c_void_p(-1).value)
+    try:
+        assert libc.mprotect(base + page, page, 0) == 0        # PROT_NONE
+        n = 20
+        nbytes = n * 3 * np.dtype(dtype).itemsize
+        x = np.frombuffer((ctypes.c_char * nbytes).from_address(base + page - nbytes), dtype=dtype).reshape(n, 3)
+        x[...] = np.arange(3 * n).reshape(n, 3)
+        tets = np.full((1, 32), n - 1, dtype=np.uint32)
+        tets[0, ::3] = 0
+        buf = np.zeros(96, dtype=dtype)
+        gather(x, tets, 0, buf, 0)
+        np.testing.assert_array_equal(buf.reshape(3, 32), x[tets[0]].T)
+    finally:
+        libc.munmap(base, 2 * page)
 
 
 def _axpy_loop(a, b, out):
