@@ -8,8 +8,8 @@ import numba
 import numpy as np
 import pytest
 
-from softsim.kernels.blocked import BLOCK, ROW_F, ROW_X, ROWS, gather_corners, scatter_block
 from softsim.kernels import simd
+from softsim.kernels.blocked import BLOCK, ROW_F, ROW_X, ROWS, gather_corners, scatter_block
 from softsim.kernels.jit import njit
 from softsim.kernels.simd import (
     FORCE_COLUMNS,
