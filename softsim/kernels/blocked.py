@@ -17,7 +17,7 @@ Row offsets are compile-time constants and every access of the lane loop is ``re
 ``buf[row * BLOCK + j]``: LLVM emits packed SIMD code (AVX2 / AVX-512), its one runtime alias check
 (``rest`` against ``buf``) outside the loop over a group's lanes.  Each lane loop's function calls
 ``simd.prefer_wide_vectors``: LLVM's tuning for Intel's AVX-512 cores prefers 256-bit vectors, and
-left to it the loops compiled to ymm on a Xeon (Sapphire Rapids); in zmm the step ran 1.06, 1.08
+left to it the loops compiled to ymm on an AVX-512 Xeon (KVM); in zmm the step ran 1.06, 1.08
 and 1.03x as fast at 10k, 100k and 1M tets (StVK, 2 threads, one process), float32 StVK 1.09x,
 corotated 1.13x and neohookean 1.05x at 100k.  The rest rows are read in place:
 copying them into the buffer, as an earlier version did, cost as much as gathering the corners.
