@@ -15,7 +15,8 @@ import pytest
 
 import naive
 from softsim.integrators.symplectic_euler import advance, step_arguments, work_buffer
-from softsim.kernels.blocked import BLOCK, PREFETCH_BLOCKS_AHEAD, PREFETCH_FROM_BYTES, build_block_layout, first_uses, prefetching
+from softsim.kernels.blocked import (BLOCK, PREFETCH_BLOCKS_AHEAD, PREFETCH_FROM_BYTES, build_block_layout, first_uses,
+                                     prefetching)
 from softsim.kernels.rest_state import rest_state, vertex_tet_csr
 from softsim.materials.models import MODEL_IDS, model_lame_parameters
 from softsim.mesh.generate import structured_box

@@ -189,11 +189,11 @@ def build_block_layout(tets, Dm_inv, rest_volume, node_count, scatter=None, slab
     owned_offsets, owned = vertex_owners(block_tets, tets.shape[0], node_count, part_offsets, colour_parts)
     if scatter is None:
         scatter = "colour"
+    first_offsets, first_vertices = no_first_uses(block_tets.shape[0])
     layout = BlockLayout(tets=block_tets, rest=block_rest, tet_count=int(tets.shape[0]), part_offsets=part_offsets,
                          colour_offsets=colour_offsets, colour_parts=colour_parts, owned_offsets=owned_offsets,
-                         owned=owned, scatter=scatter, prefetch=None,
-                         first_offsets=np.zeros(block_tets.shape[0] + 1, dtype=np.int64),
-                         first_vertices=np.empty(0, np.uint32))
+                         owned=owned, scatter=scatter, prefetch=None, first_offsets=first_offsets,
+                         first_vertices=first_vertices)
     if block_rest.nbytes > PREFETCH_FROM_BYTES:
         return prefetching(layout, node_count, PREFETCH_BLOCKS_AHEAD)
     return layout
@@ -207,8 +207,14 @@ def prefetching(layout, node_count, ahead, vertex_rows=True):
     if ahead is not None and vertex_rows:
         first_offsets, first_vertices = first_uses(layout.tets, layout.part_offsets, node_count)
     else:
-        first_offsets, first_vertices = np.zeros(layout.tets.shape[0] + 1, dtype=np.int64), np.empty(0, np.uint32)
+        first_offsets, first_vertices = no_first_uses(layout.tets.shape[0])
     return dataclasses.replace(layout, prefetch=ahead, first_offsets=first_offsets, first_vertices=first_vertices)
+
+
+def no_first_uses(block_count):
+    """Empty first-use lists of ``block_count`` blocks (``BlockLayout.first_offsets``,
+    ``first_vertices``): a layout that fetches no vertex rows."""
+    return np.zeros(block_count + 1, dtype=np.int64), np.empty(0, np.uint32)
 
 
 def slab_parts(block_tets, node_count, slabs=SLABS):
