@@ -84,7 +84,7 @@ ROW_J = ROW_F              # the guard's element checks: J = det F
 ROW_STRETCH = ROW_F + 1    # and the RMS stretch |F| / sqrt(3)
 ROW_STAGE = 24             # corotated: what a lane still needs: STAGE_DONE, STAGE_NEWTON or STAGE_JACOBI
 ROW_LIST = 25              # corotated: the lanes a scalar pass redoes, listed first
-ROW_NEWTON = 26            # corotated: rows 26..34 ``2^4 X_4`` of Newton's iteration, row 35 det F
+ROW_NEWTON = 26            # corotated: rows 26..34 ``X_4`` of Newton's iteration, row 35 det F
 ROWS = 36                  # rows of the scratch buffer; ``ROWS * BLOCK`` floats
 STAGE_DONE = 0.0           # corotated, row ROW_STAGE: forces stored
 STAGE_NEWTON = 1.0         # Newton's last two steps to take (det F > 0, the first four did not settle)
@@ -488,16 +488,16 @@ def neohookean_block(rest, buf, lam, mu, upcoming):
 
 
 @njit_inline
-def lane_store_newton(buf, j, Y, det):
-    """Keep lane ``j``'s ``Y = 2^4 X_4`` and det F in rows ``ROW_NEWTON..`` for the second stage."""
+def lane_store_newton(buf, j, X, det):
+    """Keep lane ``j``'s ``X_4`` and det F in rows ``ROW_NEWTON..`` for the second stage."""
     for k in range(9):
-        buf[(ROW_NEWTON + k) * BLOCK + j] = Y[k]
+        buf[(ROW_NEWTON + k) * BLOCK + j] = X[k]
     buf[(ROW_NEWTON + 9) * BLOCK + j] = det
 
 
 @njit_inline
 def lane_load_newton(buf, j):
-    """Lane ``j``'s ``Y = 2^4 X_4`` from rows ``ROW_NEWTON..`` (9-tuple)."""
+    """Lane ``j``'s ``X_4`` from rows ``ROW_NEWTON..`` (9-tuple)."""
     return (buf[ROW_NEWTON * BLOCK + j], buf[(ROW_NEWTON + 1) * BLOCK + j], buf[(ROW_NEWTON + 2) * BLOCK + j],
             buf[(ROW_NEWTON + 3) * BLOCK + j], buf[(ROW_NEWTON + 4) * BLOCK + j], buf[(ROW_NEWTON + 5) * BLOCK + j],
             buf[(ROW_NEWTON + 6) * BLOCK + j], buf[(ROW_NEWTON + 7) * BLOCK + j], buf[(ROW_NEWTON + 8) * BLOCK + j])
@@ -539,9 +539,9 @@ def corotated_block(rest, buf, lam, mu, upcoming):
         for l in range(GROUP):
             j = g * GROUP + l
             F = lane_deformation_gradient(group, l, buf, j)
-            R, Y, det, converged = newton_polar_start(F)
+            R, det, converged = newton_polar_start(F)
             lane_store_forces(group, l, buf, j, _corotated_stress(F, R, lam, mu))
-            lane_store_newton(buf, j, Y, det)
+            lane_store_newton(buf, j, R, det)
             stage = STAGE_DONE if converged else (STAGE_NEWTON if det > 0.0 else STAGE_JACOBI)
             buf[ROW_STAGE * BLOCK + j] = stage
             pending += 1 if stage != STAGE_DONE else 0

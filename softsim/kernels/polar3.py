@@ -11,8 +11,9 @@ moved into the smallest singular value, so that ``R = U V^T`` has det +1 and max
   1986), which converges to the polar factor.  Where det F > 0 that is ``R``; the last step's size
   tells whether it converged.  ``NEWTON_FIRST_STEPS`` steps (``newton_polar_start``) settle the
   tets of small strain; the others take two more (``newton_polar_finish``, ``NEWTON_ITERATIONS``
-  in all).  About 60 flops and one division a step: the fast path, for the tets of a simulation
-  that are neither inverted, nearly flat nor stretched by more than about 3x.
+  in all).  About 70 flops a step and no division (the iterate is carried scaled, the scale
+  divided out once at the end): the fast path, for the tets of a simulation that are neither
+  inverted, nearly flat nor stretched by more than about 3x.
 - ``jacobi_rotation_and_stretch``: a Jacobi SVD without arrays or branches (after
   McAdams et al. 2011, "Computing the singular value decomposition of 3x3 matrices with minimal
   branching and elementary floating point operations"):
@@ -68,6 +69,14 @@ NEWTON_FIRST_STEPS = 4     # documents the code (newton_polar_start)
 # Largest last Newton step (Frobenius norm of X_k - X_k-1) accepted as converged: the error left in
 # R is about half its square, 5e-15.
 NEWTON_STEP_TOLERANCE = 1e-7
+# The iterates are carried scaled, ``Z_k = c_k X_k`` (``newton_polar_step``), with ``c_4 = 2^85 d_0^64
+# d_1^16 d_2^4 d_3`` (``d_k = det X_k``, ``d_0 = det F``), which only sets the exponent of Z's
+# entries; products within a step reach about ``c_k``.  A result is accepted only while ``c``
+# stays within these bounds, where nothing has overflowed or fallen below the normal numbers.
+# They lie beyond where the steps converge at all (F = a Q: a from about 0.3 to 3), so they
+# decline only results that could not have been accepted anyway.
+NEWTON_SCALE_MIN = 2.0 ** -900
+NEWTON_SCALE_MAX = 2.0 ** 900
 
 # u1 falls back to a unit vector orthogonal to u0 when |b1 - (b1 . u0) u0| is below this times |b0|
 # (b1 parallel to b0: F of rank 1).
@@ -227,45 +236,64 @@ def jacobi_rotation_and_stretch(F):
 
 
 @njit_inline
-def newton_polar_step(Y, k):
-    """``(Y + 4^k Y^-T, det Y)``, ``Y^-T = cof(Y) / det Y`` (9-tuples): step k (from 0) of Newton's
-    iteration ``X <- (X + X^-T) / 2`` for the polar factor, carried as ``Y = 2^k X`` so that no
-    step scales by 1/2 (a power of two: the same bits as halving every step).  Infinite or NaN
-    entries when Y is singular."""
-    C = mat3_cofactor_inline(Y)
-    det = Y[0] * C[0] + Y[1] * C[1] + Y[2] * C[2]
-    return mat3_add_scaled_inline(Y, C, float(4 ** k) / det), det
+def newton_polar_step(Z, s):
+    """``(det Z Z + s cof(Z), det Z)`` (9-tuple, scalar): a step of Newton's iteration ``X <- (X +
+    X^-T) / 2`` for the polar factor without a division, carried on ``Z = c X`` with ``s = c^2``.
+
+    With ``cof(Z) = c^2 cof(X)`` and ``det Z = c^3 det X`` the result is ``c^4 det X (X + X^-T) =
+    c' X'``, ``c' = 2 c det Z``: the iterate, scaled.  Dividing by ``det`` at every step, as
+    ``X^-T = cof(X) / det X`` does, put a division's latency (about 20 cycles) on the chain of
+    dependent operations of each step; the lane loop waited on it.  The scale is divided out once,
+    at the end (``newton_polar_result``).  Z of det 0 gives the zero matrix."""
+    C = mat3_cofactor_inline(Z)
+    det = Z[0] * C[0] + Z[1] * C[1] + Z[2] * C[2]
+    return mat3_add_scaled_inline(mat3_scale_inline(C, s), Z, det), det
+
+
+@njit_inline
+def newton_polar_result(Z, W, c, det_W):
+    """``(R, converged)`` from the last two iterates ``Z = c X_k`` and ``W = b X_k-1``, ``c = 2 b
+    det W``: ``R = X_k``, accepted when the last step, ``X_k - X_k-1 = R - (2 det W / c) W``, moved X
+    by at most ``NEWTON_STEP_TOLERANCE`` (Frobenius) and ``c`` lies within ``[NEWTON_SCALE_MIN,
+    NEWTON_SCALE_MAX]``, where no entry of ``c X`` nor of the steps' products can overflow or
+    fall below the normal numbers."""
+    inv = 1.0 / c
+    R = mat3_scale_inline(Z, inv)
+    D = mat3_add_scaled_inline(R, W, -2.0 * det_W * inv)
+    step = mat3_ddot_inline(D, D)
+    in_range = c >= NEWTON_SCALE_MIN and c <= NEWTON_SCALE_MAX
+    return R, in_range and step <= NEWTON_STEP_TOLERANCE * NEWTON_STEP_TOLERANCE
 
 
 @njit_inline
 def newton_polar_start(F):
-    """``(R, Y, det, converged)``: the first ``NEWTON_FIRST_STEPS`` steps of Newton's polar
-    iteration from ``X = F``.  ``R = X_4``, accepted (``converged``) when det F > 0 and the last
-    step moved X by at most ``NEWTON_STEP_TOLERANCE``: the tets of a small strain.  ``Y = 2^4 X_4``
-    and ``det = det F`` are what ``newton_polar_finish`` goes on from."""
-    Y, det = newton_polar_step(F, 0)
-    Y, _ = newton_polar_step(Y, 1)
-    W, _ = newton_polar_step(Y, 2)                # W = 2^3 X_3
-    Y, _ = newton_polar_step(W, 3)                # Y = 2^4 X_4
-    q = 1.0 / 16.0                                  # 2^-4: the four steps written out above
-    D = mat3_add_scaled_inline(Y, W, -2.0)          # 2^4 (X_4 - X_3)
-    step = q * q * mat3_ddot_inline(D, D)
-    R = mat3_scale_inline(Y, q)
-    return R, Y, det, det > 0.0 and step <= NEWTON_STEP_TOLERANCE * NEWTON_STEP_TOLERANCE
+    """``(R, det, converged)``: the first ``NEWTON_FIRST_STEPS`` steps of Newton's polar
+    iteration from ``X = F``.  ``R = X_4``, accepted (``converged``) when det F > 0 and
+    ``newton_polar_result`` accepts it: the tets of a small strain.  ``newton_polar_finish`` goes on
+    from ``R`` and ``det = det F``."""
+    Z, det = newton_polar_step(F, 1.0)             # Z_1 = c_1 X_1, c_1 = 2 det F
+    c = 2.0 * det
+    Z, d = newton_polar_step(Z, c * c)
+    c = 2.0 * c * d
+    W, d = newton_polar_step(Z, c * c)             # W = c_3 X_3
+    c = 2.0 * c * d
+    Z, d = newton_polar_step(W, c * c)             # Z = c_4 X_4
+    c = 2.0 * c * d
+    R, converged = newton_polar_result(Z, W, c, d)
+    return R, det, det > 0.0 and converged
 
 
 @njit_inline
-def newton_polar_finish(Y, det):
-    """``(R, converged)``: Newton's steps 5 and 6 from ``Y = 2^4 X_4`` of ``newton_polar_start``
+def newton_polar_finish(X, det):
+    """``(R, converged)``: Newton's steps 5 and 6 from ``X = X_4`` of ``newton_polar_start``
     (``det = det F``), ``R = X_6``, accepted as there.  Otherwise R is meaningless (possibly NaN):
     inverted, nearly flat or strongly stretched F."""
-    Y, _ = newton_polar_step(Y, 4)                # Y = 2^5 X_5
-    Z, _ = newton_polar_step(Y, 5)                # Z = 2^6 X_6
-    q = 1.0 / 64.0                                  # 2^-6: the six steps written out
-    D = mat3_add_scaled_inline(Z, Y, -2.0)          # 2^6 (X_6 - X_5)
-    step = q * q * mat3_ddot_inline(D, D)
-    R = mat3_scale_inline(Z, q)
-    return R, det > 0.0 and step <= NEWTON_STEP_TOLERANCE * NEWTON_STEP_TOLERANCE
+    W, d = newton_polar_step(X, 1.0)               # W = c_5 X_5, c_5 = 2 det X_4
+    c = 2.0 * d
+    Z, d = newton_polar_step(W, c * c)             # Z = c_6 X_6
+    c = 2.0 * c * d
+    R, converged = newton_polar_result(Z, W, c, d)
+    return R, det > 0.0 and converged
 
 
 @njit_inline
@@ -279,10 +307,10 @@ def newton_polar_rotation(F):
     Otherwise R is meaningless (possibly NaN): inverted, nearly flat or strongly stretched F.
     The lane loop of ``kernels.blocked.corotated_block`` takes the same two stages in two passes.
     """
-    R, Y, det, converged = newton_polar_start(F)
+    R, det, converged = newton_polar_start(F)
     if converged:
         return R, True
-    return newton_polar_finish(Y, det)
+    return newton_polar_finish(R, det)
 
 
 @njit
@@ -306,7 +334,7 @@ def jacobi_polar_rotation(F):
 @njit
 def newton_polar_start_jit(F):
     """``(R, converged)`` of ``newton_polar_start`` as an ordinary jitted function (for tests)."""
-    R, _, _, converged = newton_polar_start(F)
+    R, _, converged = newton_polar_start(F)
     return R, converged
 
 
