@@ -243,8 +243,11 @@ def second_stage_F(rng):
 def test_lane_loop_gives_the_bits_of_the_per_tet_law(second_stage, fallbacks):
     """A block with ``second_stage`` lanes that need Newton's last two steps and ``fallbacks`` lanes
     that Newton cannot do (inverted, nearly flat, strongly stretched), each through its scalar
-    and its packed loop, among near-rest lanes: every lane's forces are exactly -P of
-    ``corotated_first_piola``, whichever path the block took."""
+    and its packed loop, among near-rest lanes: every lane's forces are -P of
+    ``corotated_first_piola``, whichever path the block took, to round-off.  Not bit for bit:
+    LLVM fuses multiplies and adds (``jit.JIT_OPTIONS``) where it chooses, not always at the
+    same places in a packed loop as in a scalar function; a few ulps of R show in ``F - R``: up to
+    4.4e-16 of ``(lam + mu) |F|`` (measured)."""
     rng = np.random.default_rng(303 + second_stage)
     hard = ("inverted", "nearly flat", "inverted, stretch ratio up to 1e3")
     Fs = np.array([family(hard[j % 3], rng) if j < fallbacks
@@ -257,9 +260,10 @@ def test_lane_loop_gives_the_bits_of_the_per_tet_law(second_stage, fallbacks):
     corotated_block(rest, buf, LAM, MU, rest)
     for j in range(BLOCK):
         P = P_of(Fs[j])
+        tolerance = 1e-14 * (LAM + MU) * np.abs(Fs[j]).max()
         for c in range(1, 4):
             for k in range(3):
-                assert buf[(ROW_F + 3 * c + k) * BLOCK + j] == -P[k, c - 1], (j, c, k)
+                assert abs(buf[(ROW_F + 3 * c + k) * BLOCK + j] + P[k, c - 1]) <= tolerance, (j, c, k)
 
 
 @pytest.mark.parametrize("inverted", [False, True])

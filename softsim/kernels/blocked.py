@@ -530,8 +530,8 @@ def corotated_block(rest, buf, lam, mu, upcoming):
     ``polar3.newton_polar_rotation`` takes them: four steps for every lane (packed), the last two
     for the lanes the four did not settle (not for inverted ones: Newton cannot accept them); the
     lanes where it did not converge (inverted, nearly flat or strongly stretched tets) are redone
-    with the Jacobi SVD, as ``polar3.polar_rotation`` does per tet.  Every lane gets the bits of
-    the per-tet law."""
+    with the Jacobi SVD, as ``polar3.polar_rotation`` does per tet.  Every lane gets the per-tet
+    law's forces to round-off."""
     prefer_wide_vectors()
     pending = 0
     for g in range(GROUPS):

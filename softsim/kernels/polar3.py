@@ -317,7 +317,8 @@ def newton_polar_rotation(F):
 def polar_rotation(F):
     """The rotation ``R`` (9-tuple) of the inversion-aware SVD of ``F`` (9-tuple): Newton's
     iteration where it converges, the Jacobi SVD elsewhere.  The blocked lane loops make the same
-    choice per tet and get the same bits."""
+    choice per tet and agree to round-off (LLVM may fuse multiplies and adds at other places in a
+    packed loop: ``jit.JIT_OPTIONS``)."""
     R, converged = newton_polar_rotation(F)
     if converged:
         return R
