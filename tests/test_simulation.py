@@ -413,6 +413,8 @@ def test_damping_decays_velocity_by_exp_minus_d_dt_per_step(scene):
     """No forces (no gravity, rigid translation): v_n = v0 e^(-d dt n), and
     x_n = x0 + dt v0 sum_{k=1..n} e^(-d dt k) (damping applies before the position update).
     d dt = 0.01: a first-order factor 1 - d dt would be off by n (d dt)^2 / 2 = 1e-3 after n = 200.
+    The translated cube's elastic forces are round-off, not zero (its edges are differences of
+    moved coordinates): 1e-12 of v after 200 steps.
     """
     d, dt, n = 10.0, 1.0e-3, 200
     v0 = np.array([0.4, -0.3, 0.2])
@@ -426,7 +428,7 @@ def test_damping_decays_velocity_by_exp_minus_d_dt_per_step(scene):
     for chunk in (1, 49, 150):
         run_steps(prepared, state, corner, chunk)
         done += chunk
-        np.testing.assert_allclose(state.v, np.broadcast_to(v0 * factor ** done, state.v.shape), rtol=1e-12)
+        np.testing.assert_allclose(state.v, np.broadcast_to(v0 * factor ** done, state.v.shape), rtol=1e-11)
         drift = dt * sum(factor ** k for k in range(1, done + 1))
         np.testing.assert_allclose(state.x, x0 + v0 * drift, rtol=0, atol=1e-13)
 

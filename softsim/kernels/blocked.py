@@ -11,7 +11,7 @@ block is one row of ``BLOCK`` lanes (structure of arrays), read from the block's
                      (or corner displacements u_c,k = x - X, in the displacement form below)
     buf rows 12..23  corner forces f_c,k        [N]       row 12 + 3 c + k
                      (the guard's element checks: J and the stretch in rows 12 and 13)
-    buf rows 24..35  corotated only: the lanes' next stage, Newton's state (see ``corotated_block``)
+    buf rows 24..36  corotated only: the lanes' next stage, Newton's state (see ``corotated_block``)
 
 Row offsets are compile-time constants and every access of the lane loop is ``rest[g, row, l]`` or
 ``buf[row * BLOCK + j]``: LLVM emits packed SIMD code (AVX2 / AVX-512), its one runtime alias check
@@ -67,7 +67,8 @@ from ..materials.models import (
 )
 from ..mesh.reorder import SLABS
 from .jit import njit, njit_inline
-from .mat3 import mat3_ddot_inline, mat3_det_inline, mat3_mul_inline, mat3_mul_transpose_b_inline, mat3_scale_inline
+from .mat3 import (mat3_add_scaled_inline, mat3_ddot_inline, mat3_det_inline, mat3_mul_inline, mat3_mul_transpose_b_inline,
+                   mat3_scale_inline)
 from .polar3 import jacobi_rotation_and_stretch, newton_polar_finish, newton_polar_start
 from .simd import (CACHE_LINE_BYTES, FORCE_COLUMNS, add_corner_force, gather_corner_rows, prefer_wide_vectors,
                    prefetch_line)
@@ -84,8 +85,8 @@ ROW_J = ROW_F              # the guard's element checks: J = det F
 ROW_STRETCH = ROW_F + 1    # and the RMS stretch |F| / sqrt(3)
 ROW_STAGE = 24             # corotated: what a lane still needs: STAGE_DONE, STAGE_NEWTON or STAGE_JACOBI
 ROW_LIST = 25              # corotated: the lanes a scalar pass redoes, listed first
-ROW_NEWTON = 26            # corotated: rows 26..34 ``X_4`` of Newton's iteration, row 35 det F
-ROWS = 36                  # rows of the scratch buffer; ``ROWS * BLOCK`` floats
+ROW_NEWTON = 26            # corotated: rows 26..34 ``Z`` of Newton's iteration (X_4 = inv Z), 35 inv, 36 det F
+ROWS = 37                  # rows of the scratch buffer; ``ROWS * BLOCK`` floats
 STAGE_DONE = 0.0           # corotated, row ROW_STAGE: forces stored
 STAGE_NEWTON = 1.0         # Newton's last two steps to take (det F > 0, the first four did not settle)
 STAGE_JACOBI = 2.0         # the Jacobi SVD to take (det F <= 0, or Newton did not converge)
@@ -451,7 +452,14 @@ def lane_rest_matrix(rest, l):
 def lane_store_forces(rest, l, buf, j, P):
     """Corner forces of lane ``j`` (lane ``l`` of its group's rest rows) from its stress ``P``:
     ``H = -V0 P Dm^-T``, corner c (1..3) gets column c - 1 of H, ``f0 = -(f1 + f2 + f3)``."""
-    H = mat3_scale_inline(mat3_mul_transpose_b_inline(P, lane_rest_matrix(rest, l)), -rest[ROW_VOLUME, l])
+    lane_store_weighted_forces(rest, l, buf, j, mat3_scale_inline(P, -rest[ROW_VOLUME, l]))
+
+
+@njit_inline
+def lane_store_weighted_forces(rest, l, buf, j, Q):
+    """``lane_store_forces`` from ``Q = -V0 P`` (a law that folds ``-V0`` into its scalars):
+    ``H = Q Dm^-T``."""
+    H = mat3_mul_transpose_b_inline(Q, lane_rest_matrix(rest, l))
     lane_store_component(buf, j, 0, H[0], H[1], H[2])
     lane_store_component(buf, j, 1, H[3], H[4], H[5])
     lane_store_component(buf, j, 2, H[6], H[7], H[8])
@@ -488,19 +496,35 @@ def neohookean_block(rest, buf, lam, mu, upcoming):
 
 
 @njit_inline
-def lane_store_newton(buf, j, X, det):
-    """Keep lane ``j``'s ``X_4`` and det F in rows ``ROW_NEWTON..`` for the second stage."""
+def lane_store_corotated_forces(rest, l, buf, j, F, Z, inv, lam, mu):
+    """``lane_store_forces`` of the corotated stress with ``R = inv Z`` (Newton's scaled iterate,
+    ``polar3.newton_polar_start``): ``-V0 P = -V0 [2 mu F + (lam (inv Z : F - 3) - 2 mu) inv Z]``,
+    the factors folded into two scalars, so that neither R nor ``V0 P`` is formed (18 multiplies
+    a lane fewer than ``corotated_stress`` and ``lane_store_forces``)."""
+    volume = rest[ROW_VOLUME, l]
+    k = lam * (inv * mat3_ddot_inline(Z, F) - 3.0) - 2.0 * mu
+    lane_store_weighted_forces(rest, l, buf, j, mat3_add_scaled_inline(mat3_scale_inline(F, -2.0 * mu * volume), Z,
+                                                                       -volume * k * inv))
+
+
+@njit_inline
+def lane_store_newton(buf, j, Z, inv, det):
+    """Keep lane ``j``'s ``X_4 = inv Z`` (as Z and inv) and det F in rows ``ROW_NEWTON..`` for the
+    second stage."""
     for k in range(9):
-        buf[(ROW_NEWTON + k) * BLOCK + j] = X[k]
-    buf[(ROW_NEWTON + 9) * BLOCK + j] = det
+        buf[(ROW_NEWTON + k) * BLOCK + j] = Z[k]
+    buf[(ROW_NEWTON + 9) * BLOCK + j] = inv
+    buf[(ROW_NEWTON + 10) * BLOCK + j] = det
 
 
 @njit_inline
 def lane_load_newton(buf, j):
     """Lane ``j``'s ``X_4`` from rows ``ROW_NEWTON..`` (9-tuple)."""
-    return (buf[ROW_NEWTON * BLOCK + j], buf[(ROW_NEWTON + 1) * BLOCK + j], buf[(ROW_NEWTON + 2) * BLOCK + j],
-            buf[(ROW_NEWTON + 3) * BLOCK + j], buf[(ROW_NEWTON + 4) * BLOCK + j], buf[(ROW_NEWTON + 5) * BLOCK + j],
-            buf[(ROW_NEWTON + 6) * BLOCK + j], buf[(ROW_NEWTON + 7) * BLOCK + j], buf[(ROW_NEWTON + 8) * BLOCK + j])
+    return mat3_scale_inline(
+        (buf[ROW_NEWTON * BLOCK + j], buf[(ROW_NEWTON + 1) * BLOCK + j], buf[(ROW_NEWTON + 2) * BLOCK + j],
+         buf[(ROW_NEWTON + 3) * BLOCK + j], buf[(ROW_NEWTON + 4) * BLOCK + j], buf[(ROW_NEWTON + 5) * BLOCK + j],
+         buf[(ROW_NEWTON + 6) * BLOCK + j], buf[(ROW_NEWTON + 7) * BLOCK + j], buf[(ROW_NEWTON + 8) * BLOCK + j]),
+        buf[(ROW_NEWTON + 9) * BLOCK + j])
 
 
 @njit_inline
@@ -508,8 +532,8 @@ def lane_finish_newton(rest, l, buf, j, lam, mu):
     """Newton's last two steps for lane ``j`` (lane ``l`` of ``rest``): its forces where they
     converge (``STAGE_DONE``), else ``STAGE_JACOBI``."""
     F = lane_deformation_gradient(rest, l, buf, j)
-    R, converged = newton_polar_finish(lane_load_newton(buf, j), buf[(ROW_NEWTON + 9) * BLOCK + j])
-    lane_store_forces(rest, l, buf, j, _corotated_stress(F, R, lam, mu))
+    Z, inv, converged = newton_polar_finish(lane_load_newton(buf, j), buf[(ROW_NEWTON + 10) * BLOCK + j])
+    lane_store_corotated_forces(rest, l, buf, j, F, Z, inv, lam, mu)
     buf[ROW_STAGE * BLOCK + j] = STAGE_DONE if converged else STAGE_JACOBI
 
 
@@ -539,9 +563,9 @@ def corotated_block(rest, buf, lam, mu, upcoming):
         for l in range(GROUP):
             j = g * GROUP + l
             F = lane_deformation_gradient(group, l, buf, j)
-            R, det, converged = newton_polar_start(F)
-            lane_store_forces(group, l, buf, j, _corotated_stress(F, R, lam, mu))
-            lane_store_newton(buf, j, R, det)
+            Z, inv, det, converged = newton_polar_start(F)
+            lane_store_corotated_forces(group, l, buf, j, F, Z, inv, lam, mu)
+            lane_store_newton(buf, j, Z, inv, det)
             stage = STAGE_DONE if converged else (STAGE_NEWTON if det > 0.0 else STAGE_JACOBI)
             buf[ROW_STAGE * BLOCK + j] = stage
             pending += 1 if stage != STAGE_DONE else 0
@@ -559,8 +583,9 @@ def corotated_block(rest, buf, lam, mu, upcoming):
                 j = g * GROUP + l
                 if buf[ROW_STAGE * BLOCK + j] == STAGE_NEWTON:
                     F = lane_deformation_gradient(group, l, buf, j)
-                    R, converged = newton_polar_finish(lane_load_newton(buf, j), buf[(ROW_NEWTON + 9) * BLOCK + j])
-                    lane_store_forces(group, l, buf, j, _corotated_stress(F, R, lam, mu))
+                    Z, inv, converged = newton_polar_finish(lane_load_newton(buf, j),
+                                                            buf[(ROW_NEWTON + 10) * BLOCK + j])
+                    lane_store_corotated_forces(group, l, buf, j, F, Z, inv, lam, mu)
                     buf[ROW_STAGE * BLOCK + j] = STAGE_DONE if converged else STAGE_JACOBI
     elif newton > 0:
         for k in range(list_lanes(buf, STAGE_NEWTON)):   # scalar, one listed lane at a time

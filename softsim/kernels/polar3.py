@@ -72,11 +72,12 @@ NEWTON_STEP_TOLERANCE = 1e-7
 # The iterates are carried scaled, ``Z_k = c_k X_k`` (``newton_polar_step``), with ``c_4 = 2^85 d_0^64
 # d_1^16 d_2^4 d_3`` (``d_k = det X_k``, ``d_0 = det F``), which only sets the exponent of Z's
 # entries; products within a step reach about ``c_k``.  A result is accepted only while ``c``
-# stays within these bounds, where nothing has overflowed or fallen below the normal numbers.
-# They lie beyond where the steps converge at all (F = a Q: a from about 0.3 to 3), so they
-# decline only results that could not have been accepted anyway.
-NEWTON_SCALE_MIN = 2.0 ** -900
-NEWTON_SCALE_MAX = 2.0 ** 900
+# stays within these bounds, where nothing has overflowed or fallen below the normal numbers, the
+# test's ``(1/c)^2`` included.  They lie beyond where the first four steps converge (F = a Q: c_4
+# from 2^23 to 2^147 for a from 0.8 to 1.25), so they decline only results that could not have
+# been accepted anyway; the last two steps start again from ``X_4`` at c = 1.
+NEWTON_SCALE_MIN = 2.0 ** -500
+NEWTON_SCALE_MAX = 2.0 ** 500
 
 # u1 falls back to a unit vector orthogonal to u0 when |b1 - (b1 . u0) u0| is below this times |b0|
 # (b1 parallel to b0: F of rank 1).
@@ -252,25 +253,25 @@ def newton_polar_step(Z, s):
 
 @njit_inline
 def newton_polar_result(Z, W, c, det_W):
-    """``(R, converged)`` from the last two iterates ``Z = c X_k`` and ``W = b X_k-1``, ``c = 2 b
-    det W``: ``R = X_k``, accepted when the last step, ``X_k - X_k-1 = R - (2 det W / c) W``, moved X
-    by at most ``NEWTON_STEP_TOLERANCE`` (Frobenius) and ``c`` lies within ``[NEWTON_SCALE_MIN,
-    NEWTON_SCALE_MAX]``, where no entry of ``c X`` nor of the steps' products can overflow or
-    fall below the normal numbers."""
+    """``(inv, converged)`` from the last two iterates ``Z = c X_k`` and ``W = b X_k-1``, ``c = 2 b
+    det W``: ``inv = 1 / c``, so that ``X_k = inv Z``, accepted when the last step, ``X_k - X_k-1 =
+    inv (Z - 2 det W W)``, moved X by at most ``NEWTON_STEP_TOLERANCE`` (Frobenius) and ``c`` lies
+    within ``[NEWTON_SCALE_MIN, NEWTON_SCALE_MAX]``, where neither Z, the step nor ``inv^2``
+    can overflow or fall below the normal numbers.  ``X_k`` is left to the caller: the lane loop
+    of ``kernels.blocked.corotated_block`` folds ``inv`` into the stress instead."""
     inv = 1.0 / c
-    R = mat3_scale_inline(Z, inv)
-    D = mat3_add_scaled_inline(R, W, -2.0 * det_W * inv)
-    step = mat3_ddot_inline(D, D)
+    D = mat3_add_scaled_inline(Z, W, -2.0 * det_W)   # c (X_k - X_k-1)
+    step = inv * inv * mat3_ddot_inline(D, D)
     in_range = c >= NEWTON_SCALE_MIN and c <= NEWTON_SCALE_MAX
-    return R, in_range and step <= NEWTON_STEP_TOLERANCE * NEWTON_STEP_TOLERANCE
+    return inv, in_range and step <= NEWTON_STEP_TOLERANCE * NEWTON_STEP_TOLERANCE
 
 
 @njit_inline
 def newton_polar_start(F):
-    """``(R, det, converged)``: the first ``NEWTON_FIRST_STEPS`` steps of Newton's polar
-    iteration from ``X = F``.  ``R = X_4``, accepted (``converged``) when det F > 0 and
-    ``newton_polar_result`` accepts it: the tets of a small strain.  ``newton_polar_finish`` goes on
-    from ``R`` and ``det = det F``."""
+    """``(Z, inv, det, converged)``: the first ``NEWTON_FIRST_STEPS`` steps of Newton's polar
+    iteration from ``X = F``, ``X_4 = inv Z``, accepted (``converged``) when det F > 0 and
+    ``newton_polar_result`` accepts it: the tets of a small strain.  ``newton_polar_finish`` goes
+    on from ``X_4`` and ``det = det F``."""
     Z, det = newton_polar_step(F, 1.0)             # Z_1 = c_1 X_1, c_1 = 2 det F
     c = 2.0 * det
     Z, d = newton_polar_step(Z, c * c)
@@ -279,21 +280,21 @@ def newton_polar_start(F):
     c = 2.0 * c * d
     Z, d = newton_polar_step(W, c * c)             # Z = c_4 X_4
     c = 2.0 * c * d
-    R, converged = newton_polar_result(Z, W, c, d)
-    return R, det, det > 0.0 and converged
+    inv, converged = newton_polar_result(Z, W, c, d)
+    return Z, inv, det, det > 0.0 and converged
 
 
 @njit_inline
 def newton_polar_finish(X, det):
-    """``(R, converged)``: Newton's steps 5 and 6 from ``X = X_4`` of ``newton_polar_start``
-    (``det = det F``), ``R = X_6``, accepted as there.  Otherwise R is meaningless (possibly NaN):
-    inverted, nearly flat or strongly stretched F."""
+    """``(Z, inv, converged)``: Newton's steps 5 and 6 from ``X = X_4`` of ``newton_polar_start``
+    (``det = det F``), ``X_6 = inv Z``, accepted as there.  Otherwise X_6 is meaningless (possibly
+    NaN): inverted, nearly flat or strongly stretched F."""
     W, d = newton_polar_step(X, 1.0)               # W = c_5 X_5, c_5 = 2 det X_4
     c = 2.0 * d
     Z, d = newton_polar_step(W, c * c)             # Z = c_6 X_6
     c = 2.0 * c * d
-    R, converged = newton_polar_result(Z, W, c, d)
-    return R, det > 0.0 and converged
+    inv, converged = newton_polar_result(Z, W, c, d)
+    return Z, inv, det > 0.0 and converged
 
 
 @njit_inline
@@ -307,10 +308,12 @@ def newton_polar_rotation(F):
     Otherwise R is meaningless (possibly NaN): inverted, nearly flat or strongly stretched F.
     The lane loop of ``kernels.blocked.corotated_block`` takes the same two stages in two passes.
     """
-    R, det, converged = newton_polar_start(F)
+    Z, inv, det, converged = newton_polar_start(F)
+    X = mat3_scale_inline(Z, inv)
     if converged:
-        return R, True
-    return newton_polar_finish(R, det)
+        return X, True
+    Z, inv, converged = newton_polar_finish(X, det)
+    return mat3_scale_inline(Z, inv), converged
 
 
 @njit
@@ -335,8 +338,8 @@ def jacobi_polar_rotation(F):
 @njit
 def newton_polar_start_jit(F):
     """``(R, converged)`` of ``newton_polar_start`` as an ordinary jitted function (for tests)."""
-    R, _, converged = newton_polar_start(F)
-    return R, converged
+    Z, inv, _, converged = newton_polar_start(F)
+    return mat3_scale_inline(Z, inv), converged
 
 
 @njit
