@@ -32,7 +32,9 @@ prefetcher alone left the lane loop waiting on memory.  So are, before each bloc
 ``x`` and of the vertex forces of the vertices that the block as far ahead is the first of its
 part to use (``first_uses``, ``prefetch_vertex_rows``): the gather and the scatter waited on them
 too.  The material law in the lane loop is the 9-tuple function of ``materials.models``,
-inlined; one lane loop per model keeps the law a compile-time choice.
+inlined; one lane loop per model keeps the law a compile-time choice.  (Corotated's stress is
+formed from Newton's scaled iterate instead, ``lane_store_corotated_forces``: the same law,
+rearranged so that fewer multiplies are needed; its test holds it to the per-tet law.)
 
 Forces (Sifakis & Barbic 2012, section 4.3): ``H = -V0 P(F) Dm^-T``; its columns are the forces on
 corners 1, 2, 3 and ``f0 = -(h1 + h2 + h3)``, exactly as ``forces.tet_corner_forces`` computes them.
