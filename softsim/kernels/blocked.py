@@ -32,9 +32,8 @@ prefetcher alone left the lane loop waiting on memory.  So are, before each bloc
 ``x`` and of the vertex forces of the vertices that the block as far ahead is the first of its
 part to use (``first_uses``, ``prefetch_vertex_rows``): the gather and the scatter waited on them
 too.  The material law in the lane loop is the 9-tuple function of ``materials.models``,
-inlined; one lane loop per model keeps the law a compile-time choice.  (Corotated's stress is
-formed from Newton's scaled iterate instead, ``lane_store_corotated_forces``: the same law,
-rearranged so that fewer multiplies are needed; its test holds it to the per-tet law.)
+inlined; one lane loop per model keeps the law a compile-time choice.  (Corotated's takes
+Newton's scaled iterate and ``-V0`` in its scalars, ``lane_store_corotated_forces``.)
 
 Forces (Sifakis & Barbic 2012, section 4.3): ``H = -V0 P(F) Dm^-T``; its columns are the forces on
 corners 1, 2, 3 and ``f0 = -(h1 + h2 + h3)``, exactly as ``forces.tet_corner_forces`` computes them.
@@ -59,7 +58,7 @@ from ..materials.models import (
     LINEAR,
     NEOHOOKEAN,
     STVK,
-    corotated_stress,
+    corotated_weighted_stress,
     linear_first_piola,
     linear_first_piola_displacement,
     neohookean_first_piola,
@@ -366,7 +365,7 @@ def _greedy_colours(v_offsets, v_units, u_offsets, u_vertices, unit_count):
 _stvk_first_piola = njit_inline(stvk_first_piola.py_func)
 _neohookean_first_piola = njit_inline(neohookean_first_piola.py_func)
 _linear_first_piola = njit_inline(linear_first_piola.py_func)
-_corotated_stress = njit_inline(corotated_stress.py_func)
+_corotated_weighted_stress = njit_inline(corotated_weighted_stress.py_func)
 _linear_first_piola_displacement = njit_inline(linear_first_piola_displacement.py_func)
 _stvk_first_piola_displacement = njit_inline(stvk_first_piola_displacement.py_func)
 _neohookean_first_piola_displacement = njit_inline(neohookean_first_piola_displacement.py_func)
@@ -500,13 +499,9 @@ def neohookean_block(rest, buf, lam, mu, upcoming):
 @njit_inline
 def lane_store_corotated_forces(rest, l, buf, j, F, Z, inv, lam, mu):
     """``lane_store_forces`` of the corotated stress with ``R = inv Z`` (Newton's scaled iterate,
-    ``polar3.newton_polar_start``): ``-V0 P = -V0 [2 mu F + (lam (inv Z : F - 3) - 2 mu) inv Z]``,
-    the factors folded into two scalars, so that neither R nor ``V0 P`` is formed (18 multiplies
-    a lane fewer than ``corotated_stress`` and ``lane_store_forces``)."""
-    volume = rest[ROW_VOLUME, l]
-    k = lam * (inv * mat3_ddot_inline(Z, F) - 3.0) - 2.0 * mu
-    lane_store_weighted_forces(rest, l, buf, j, mat3_add_scaled_inline(mat3_scale_inline(F, -2.0 * mu * volume), Z,
-                                                                       -volume * k * inv))
+    ``polar3.newton_polar_start``; or a rotation and ``inv = 1``): ``-V0`` is folded into the
+    law's scalars (``materials.models.corotated_weighted_stress``)."""
+    lane_store_weighted_forces(rest, l, buf, j, _corotated_weighted_stress(F, Z, inv, -rest[ROW_VOLUME, l], lam, mu))
 
 
 @njit_inline
@@ -606,14 +601,14 @@ def corotated_block(rest, buf, lam, mu, upcoming):
                 if buf[ROW_STAGE * BLOCK + j] == STAGE_JACOBI:
                     F = lane_deformation_gradient(group, l, buf, j)
                     R, _, _, _ = jacobi_rotation_and_stretch(F)
-                    lane_store_forces(group, l, buf, j, _corotated_stress(F, R, lam, mu))
+                    lane_store_corotated_forces(group, l, buf, j, F, R, 1.0, lam, mu)
     elif fallbacks > 0:
         for k in range(list_lanes(buf, STAGE_JACOBI)):   # scalar, one listed lane at a time
             j = int(buf[ROW_LIST * BLOCK + k])
             group = rest[j // GROUP]
             F = lane_deformation_gradient(group, j % GROUP, buf, j)
             R, _, _, _ = jacobi_rotation_and_stretch(F)
-            lane_store_forces(group, j % GROUP, buf, j, _corotated_stress(F, R, lam, mu))
+            lane_store_corotated_forces(group, j % GROUP, buf, j, F, R, 1.0, lam, mu)
 
 
 @njit

@@ -237,22 +237,22 @@ def jacobi_rotation_and_stretch(F):
 
 
 @njit_inline
-def newton_polar_step(Z, s):
-    """``(det Z Z + s cof(Z), det Z)`` (9-tuple, scalar): a step of Newton's iteration ``X <- (X +
-    X^-T) / 2`` for the polar factor without a division, carried on ``Z = c X`` with ``s = c^2``.
+def newton_polar_step(Z, c):
+    """``(det Z Z + c^2 cof(Z), 2 c det Z, det Z)``: a step of Newton's iteration ``X <- (X +
+    X^-T) / 2`` for the polar factor without a division, carried on ``Z = c X`` (9-tuple, scale).
 
     With ``cof(Z) = c^2 cof(X)`` and ``det Z = c^3 det X`` the result is ``c^4 det X (X + X^-T) =
-    c' X'``, ``c' = 2 c det Z``: the iterate, scaled.  Dividing by ``det`` at every step, as
-    ``X^-T = cof(X) / det X`` does, put a division's latency (about 20 cycles) on the chain of
+    c' X'``, ``c' = 2 c det Z``: the next iterate and its scale.  Dividing by ``det`` at every step,
+    as ``X^-T = cof(X) / det X`` does, put a division's latency (about 20 cycles) on the chain of
     dependent operations of each step; the lane loop waited on it.  The scale is divided out once,
     at the end (``newton_polar_result``).  Z of det 0 gives the zero matrix."""
     C = mat3_cofactor_inline(Z)
     det = Z[0] * C[0] + Z[1] * C[1] + Z[2] * C[2]
-    return mat3_add_scaled_inline(mat3_scale_inline(C, s), Z, det), det
+    return mat3_add_scaled_inline(mat3_scale_inline(C, c * c), Z, det), 2.0 * c * det, det
 
 
 @njit_inline
-def newton_polar_result(Z, W, c, det_W):
+def newton_polar_result(Z, c, W, det_W):
     """``(inv, converged)`` from the last two iterates ``Z = c X_k`` and ``W = b X_k-1``, ``c = 2 b
     det W``: ``inv = 1 / c``, so that ``X_k = inv Z``, accepted when the last step, ``X_k - X_k-1 =
     inv (Z - 2 det W W)``, moved X by at most ``NEWTON_STEP_TOLERANCE`` (Frobenius) and ``c`` lies
@@ -272,15 +272,11 @@ def newton_polar_start(F):
     iteration from ``X = F``, ``X_4 = inv Z``, accepted (``converged``) when det F > 0 and
     ``newton_polar_result`` accepts it: the tets of a small strain.  ``newton_polar_finish`` goes
     on from ``X_4`` and ``det = det F``."""
-    Z, det = newton_polar_step(F, 1.0)             # Z_1 = c_1 X_1, c_1 = 2 det F
-    c = 2.0 * det
-    Z, d = newton_polar_step(Z, c * c)
-    c = 2.0 * c * d
-    W, d = newton_polar_step(Z, c * c)             # W = c_3 X_3
-    c = 2.0 * c * d
-    Z, d = newton_polar_step(W, c * c)             # Z = c_4 X_4
-    c = 2.0 * c * d
-    inv, converged = newton_polar_result(Z, W, c, d)
+    Z, c, det = newton_polar_step(F, 1.0)
+    Z, c, _ = newton_polar_step(Z, c)
+    W, b, _ = newton_polar_step(Z, c)               # W = b X_3
+    Z, c, det_W = newton_polar_step(W, b)           # Z = c X_4
+    inv, converged = newton_polar_result(Z, c, W, det_W)
     return Z, inv, det, det > 0.0 and converged
 
 
@@ -289,11 +285,9 @@ def newton_polar_finish(X, det):
     """``(Z, inv, converged)``: Newton's steps 5 and 6 from ``X = X_4`` of ``newton_polar_start``
     (``det = det F``), ``X_6 = inv Z``, accepted as there.  Otherwise X_6 is meaningless (possibly
     NaN): inverted, nearly flat or strongly stretched F."""
-    W, d = newton_polar_step(X, 1.0)               # W = c_5 X_5, c_5 = 2 det X_4
-    c = 2.0 * d
-    Z, d = newton_polar_step(W, c * c)             # Z = c_6 X_6
-    c = 2.0 * c * d
-    inv, converged = newton_polar_result(Z, W, c, d)
+    W, b, _ = newton_polar_step(X, 1.0)             # W = b X_5
+    Z, c, det_W = newton_polar_step(W, b)           # Z = c X_6
+    inv, converged = newton_polar_result(Z, c, W, det_W)
     return Z, inv, det > 0.0 and converged
 
 
