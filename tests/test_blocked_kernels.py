@@ -16,7 +16,7 @@ import pytest
 import naive
 from softsim.integrators.symplectic_euler import advance, step_arguments, work_buffer
 from softsim.kernels.blocked import (BLOCK, PREFETCH_BLOCKS_AHEAD, PREFETCH_FROM_BYTES, build_block_layout, first_uses,
-                                     prefetching)
+                                     owned_vertex_runs, prefetching)
 from softsim.kernels.rest_state import rest_state, vertex_tet_csr
 from softsim.materials.models import MODEL_IDS, model_lame_parameters
 from softsim.mesh.generate import structured_box
@@ -213,6 +213,15 @@ def test_small_meshes_step_on_fewer_threads():
     assert step_threads(2 * TETS_PER_THREAD_OTHER_LAYERS, 2, "workqueue") == 2
 
 
+def test_owned_vertices_are_cut_into_runs_of_consecutive_indices_within_each_part():
+    run_offsets, runs = owned_vertex_runs(np.array([0, 4, 4, 7]), np.array([0, 1, 3, 4, 2, 5, 6]))
+    assert run_offsets.tolist() == [0, 2, 2, 4] and runs.tolist() == [[0, 2], [3, 5], [2, 3], [5, 7]]
+    run_offsets, runs = owned_vertex_runs(np.array([0, 2, 4]), np.arange(4))     # consecutive across parts
+    assert run_offsets.tolist() == [0, 1, 2] and runs.tolist() == [[0, 2], [2, 4]]
+    run_offsets, runs = owned_vertex_runs(np.array([0, 0]), np.empty(0, np.int64))
+    assert run_offsets.tolist() == [0, 0] and runs.shape == (0, 2)
+
+
 def test_each_vertex_is_moved_by_the_first_part_in_colour_order_that_uses_it():
     points, tets = structured_box((24.0, 6.0, 6.0), (0.0, 0.0, 0.0), 1.0)
     points, tets, _, _ = renumber_for_locality(points, tets, slabs=8)
@@ -221,8 +230,10 @@ def test_each_vertex_is_moved_by_the_first_part_in_colour_order_that_uses_it():
     layout = body.blocks
     owner = np.full(body.node_count, -1)
     for p in range(layout.part_offsets.shape[0] - 1):
-        mine = layout.owned[layout.owned_offsets[p]:layout.owned_offsets[p + 1]]
-        assert (np.diff(mine) > 0).all()
+        runs = layout.owned_runs[layout.run_offsets[p]:layout.run_offsets[p + 1]].astype(np.int64)
+        assert layout.owned_runs.dtype == np.uint64 and (runs[:, 1] > runs[:, 0]).all()
+        mine = np.concatenate([np.arange(a, b) for a, b in runs]) if len(runs) else np.empty(0, np.int64)
+        assert (np.diff(mine) > 0).all() and (runs[1:, 0] > runs[:-1, 1]).all()     # runs as long as they go
         assert (owner[mine] == -1).all()
         owner[mine] = p
     assert (owner >= 0).all()                                   # every vertex exactly once

@@ -190,14 +190,14 @@ def advance(x, rest, v, step_start, step_count, dt,
     rest: None; or, in float32, the rest positions (n, 3) [m], ``x`` then holding displacements
     from them (and ``held_start`` too).  Every array and scalar is in the precision of ``x``.
     step_start: index of the first step (time ``step_start * dt`` [s]); dt [s].
-    blocks: ``(block_tets, block_rest, tet_count, part_offsets, colour_parts, owned_offsets, owned,
+    blocks: ``(block_tets, block_rest, tet_count, part_offsets, colour_parts, run_offsets, owned_runs,
     prefetch, first_offsets, first_vertices)`` of a ``kernels.blocked.BlockLayout``; colour_offsets:
     (colours + 1,) into colour_parts; model id, Lame lam, mu [Pa].
     scatter True: the forces are added into ``vertex_forces`` (node_count, 4: x, y, z and a zero,
     ``kernels.simd.FORCE_COLUMNS``), one colour of parts
     at a time, its parts in parallel; False: stored into ``corner_forces`` (tet_count, 4, 3) and
     gathered per vertex through the vertex -> (tet, corner) map ``offsets`` (n+1,), ``slots`` (4m,).
-    The colour scatter moves each part's vertices (``BlockLayout.owned``) at the start of the
+    The colour scatter moves each part's vertices (``BlockLayout.owned_runs``) at the start of the
     part's next step, in the same parallel loop, and all of them after the last step: one barrier
     per colour and step, none for the vertex update.  Each vertex gets the same arithmetic in the
     same order as in a separate vertex loop, so the same bits.  With a ground, each part also
@@ -220,8 +220,8 @@ def advance(x, rest, v, step_start, step_count, dt,
     part_offsets = blocks[3]
     colour_parts = blocks[4]
     if scatter:
-        owned_offsets = blocks[5]
-        owned = blocks[6]
+        run_offsets = blocks[5]
+        owned_runs = blocks[6]
         for i in prange(node_count):
             for k in range(FORCE_COLUMNS):
                 vertex_forces[i, k] = 0.0
@@ -232,10 +232,11 @@ def advance(x, rest, v, step_start, step_count, dt,
                 for k in prange(colour_offsets[colour], colour_offsets[colour + 1]):
                     part = colour_parts[k]
                     if step > step_start:         # the previous step's update of this part's vertices
-                        for s in range(owned_offsets[part], owned_offsets[part + 1]):
-                            update_from_forces(x, rest, v, vertex_forces, owned[s], dt, step * dt, inv_mass,
-                                               external_accel, held, held_start, held_velocity, ground,
-                                               damping_factor)
+                        for r in range(run_offsets[part], run_offsets[part + 1]):
+                            for i in range(owned_runs[r, 0], owned_runs[r, 1]):
+                                update_from_forces(x, rest, v, vertex_forces, i, dt, step * dt, inv_mass,
+                                                   external_accel, held, held_start, held_velocity, ground,
+                                                   damping_factor)
                     if ground is not None:
                         part_face_areas(x, rest, ground_faces, ground[3], part)
                     block_range_forces(x, rest, blocks, part_offsets[part], part_offsets[part + 1],
@@ -272,7 +273,7 @@ def step_arguments(model, work):
     if flat.size < needed:
         raise ValueError(f"work buffer of {flat.size} floats, the {layout.scatter} scatter needs {needed}")
     blocks = (layout.tets, layout.rest, layout.tet_count, layout.part_offsets, layout.colour_parts,
-              layout.owned_offsets, layout.owned, layout.prefetch, layout.first_offsets, layout.first_vertices)
+              layout.run_offsets, layout.owned_runs, layout.prefetch, layout.first_offsets, layout.first_vertices)
     if layout.scatter == "colour":
         vertex_forces = flat[:FORCE_COLUMNS * n].reshape(n, FORCE_COLUMNS)
         corner_forces = np.empty((0, 4, 3), dtype=flat.dtype)

@@ -154,9 +154,10 @@ class BlockLayout:
     tets (block_count, 4, BLOCK) uint32; rest (block_count, GROUPS, 10, GROUP) [1/m, m^3]; tet_count: real
     tets (the last block is padded); part_offsets (part_count + 1,): part p is blocks
     ``part_offsets[p]`` to ``part_offsets[p + 1] - 1``; colour_offsets (colours + 1,), colour_parts
-    (part_count,): parts grouped by colour; owned_offsets (part_count + 1,), owned (node_count,)
-    int64: the vertices part p moves, ``owned[owned_offsets[p]:owned_offsets[p + 1]]`` (see
-    ``vertex_owners``); scatter: ``"colour"`` or ``"csr"``; prefetch: how many blocks ahead the step
+    (part_count,): parts grouped by colour; run_offsets (part_count + 1,) int64, owned_runs (runs, 2)
+    uint64: the vertices part p moves (``vertex_owners``), in runs of consecutive vertices, run r
+    being vertices ``owned_runs[r, 0]`` to ``owned_runs[r, 1] - 1``, part p's runs
+    ``run_offsets[p]`` to ``run_offsets[p + 1] - 1``; scatter: ``"colour"`` or ``"csr"``; prefetch: how many blocks ahead the step
     fetches rest data into L2 (``PREFETCH_BLOCKS_AHEAD``), or None: not at all (a small mesh);
     first_offsets (block_count + 1,) int64, first_vertices uint32: the vertices block b is the
     first of its part to use, ``first_vertices[first_offsets[b]:first_offsets[b + 1]]``, whose
@@ -169,8 +170,8 @@ class BlockLayout:
     part_offsets: np.ndarray
     colour_offsets: np.ndarray
     colour_parts: np.ndarray
-    owned_offsets: np.ndarray
-    owned: np.ndarray
+    run_offsets: np.ndarray
+    owned_runs: np.ndarray
     scatter: str
     prefetch: int | None
     first_offsets: np.ndarray
@@ -188,13 +189,14 @@ def build_block_layout(tets, Dm_inv, rest_volume, node_count, scatter=None, slab
     block_tets, block_rest = block_layout(tets, Dm_inv, rest_volume, dtype)
     part_offsets = slab_parts(block_tets, node_count, slabs)
     colour_offsets, colour_parts = part_colouring(block_tets, tets.shape[0], node_count, part_offsets)
-    owned_offsets, owned = vertex_owners(block_tets, tets.shape[0], node_count, part_offsets, colour_parts)
+    run_offsets, owned_runs = owned_vertex_runs(*vertex_owners(block_tets, tets.shape[0], node_count, part_offsets,
+                                                               colour_parts))
     if scatter is None:
         scatter = "colour"
     first_offsets, first_vertices = no_first_uses(block_tets.shape[0])
     layout = BlockLayout(tets=block_tets, rest=block_rest, tet_count=int(tets.shape[0]), part_offsets=part_offsets,
-                         colour_offsets=colour_offsets, colour_parts=colour_parts, owned_offsets=owned_offsets,
-                         owned=owned, scatter=scatter, prefetch=None, first_offsets=first_offsets,
+                         colour_offsets=colour_offsets, colour_parts=colour_parts, run_offsets=run_offsets,
+                         owned_runs=owned_runs, scatter=scatter, prefetch=None, first_offsets=first_offsets,
                          first_vertices=first_vertices)
     if block_rest.nbytes > PREFETCH_FROM_BYTES:
         return prefetching(layout, node_count, PREFETCH_BLOCKS_AHEAD)
@@ -327,6 +329,28 @@ def vertex_owners(block_tets, tet_count, node_count, part_offsets, colour_parts)
     owned_offsets = np.zeros(part_count + 1, dtype=np.int64)
     np.cumsum(np.bincount(owner, minlength=part_count), out=owned_offsets[1:])
     return owned_offsets, owned
+
+
+def owned_vertex_runs(owned_offsets, owned):
+    """``(run_offsets, owned_runs)`` (``BlockLayout``): each part's vertices ``owned[owned_offsets[p]:
+    owned_offsets[p + 1]]`` (increasing, ``vertex_owners``) cut into runs of consecutive indices.
+
+    The step moves a part's vertices run by run, in a loop over an unsigned range: Numba then
+    indexes without its check for negative indices, and the vertex rows are read in order (vertex
+    update alone, 100k-tet beam, one thread: 0.75 ns/tet in runs, 1.1 over signed ranges, 1.4
+    through the list ``owned``).  In ``mesh.reorder``'s numbering a part's vertices are nearly
+    consecutive: 124 runs in 8 parts of 22k vertices on the beam, 596 of 32k on a gmsh box.
+    """
+    part_count = owned_offsets.shape[0] - 1
+    part = np.repeat(np.arange(part_count), np.diff(owned_offsets))
+    starts = np.ones(owned.shape[0], dtype=bool)
+    starts[1:] = (np.diff(owned) != 1) | (np.diff(part) != 0)
+    first = np.flatnonzero(starts)
+    stop = np.append(first[1:], owned.shape[0])[:first.size]
+    owned_runs = np.stack([owned[first], owned[stop - 1] + 1], axis=1).astype(np.uint64)
+    run_offsets = np.zeros(part_count + 1, dtype=np.int64)
+    np.cumsum(np.bincount(part[first], minlength=part_count), out=run_offsets[1:])
+    return run_offsets, owned_runs
 
 
 def faces_by_part(faces, face_tets, part_offsets):
