@@ -59,9 +59,12 @@ def memory(tets):
     mesh = model.mesh
     arrays["mesh (user order)"] = mesh.points.nbytes + mesh.tets.nbytes
     # What one step reads or writes: the block layout, the scatter's arrays, the state, the
-    # per-vertex constants (and the ground's faces when there is a ground).
+    # per-vertex constants (the external accelerations only with tractions, the ground's faces
+    # only with a ground).
     touched = [f"blocks.{name}" for name in block_arrays]
-    touched += ["state (x, v, held_start)", "work buffer", "inv_mass", "external_accel", "held", "held_velocity"]
+    touched += ["state (x, v, held_start)", "work buffer", "inv_mass", "held", "held_velocity"]
+    if model.has_tractions:
+        touched += ["external_accel"]
     if model.blocks.scatter == "csr":
         touched += ["csr_offsets", "csr_slots"]
     if model.has_ground:

@@ -6,6 +6,7 @@ reads a ``Model`` and updates a ``State``.
 """
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -33,7 +34,8 @@ class Model:
     material_id: model id; lam, mu: the model's Lame parameters [Pa]; lame_hooke: (lambda, mu) of Hooke's law [Pa].
     csr_offsets (n+1,), csr_slots (4m,): vertex -> (tet, corner) map.
     boundary_faces: (b, 3) outward-wound faces; boundary_area: (n,) [m^2] a third of each adjacent face.
-    gravity: (3,) [m/s^2]; traction_force: (n, 3) [N] constant; external_accel: (n, 3) = gravity + traction / m.
+    gravity: (3,) [m/s^2]; traction_force: (n, 3) [N] constant; external_accel: (n, 3) = gravity + traction / m
+    (the step reads it only where there are tractions, ``has_tractions``; else gravity alone).
     held: (n, 3) bool; held_velocity: (n, 3) [m/s]; fixed: (n,) bool, held by the scene's ``fixed`` boxes.
     ground_stiffness [Pa/m] (None without a ground), ground_height [m], ground_friction.
     """
@@ -67,6 +69,12 @@ class Model:
     part_face_offsets: np.ndarray = None   # boundary faces by part of the block layout (kernels.blocked.faces_by_part)
     part_faces: np.ndarray = None
     precision: str = "float64"    # of the step (its blocks; the state stays float64); the model's arrays are float64
+
+    @cached_property
+    def has_tractions(self):
+        """Whether any vertex carries a traction force; without, the step reads ``gravity`` alone,
+        not ``external_accel``."""
+        return bool(np.any(self.traction_force))
 
     @property
     def has_ground(self):

@@ -185,12 +185,15 @@ def step(model, state, dt, step_count, damping, work):
     if model.precision == "float32":
         work.load(state, model.rest_points)
         x, rest, v, held_start = work.u, work.rest, work.v, work.held_start
-        inv_mass, external_accel, held_velocity = work.inv_mass, work.external_accel, work.held_velocity
+        inv_mass, gravity, external_accel = work.inv_mass, work.gravity, work.external_accel
+        held_velocity = work.held_velocity
         dt, lam, mu = np.float32(dt), np.float32(model.lam), np.float32(model.mu)
         forces = work.forces
     else:
         x, rest, v, held_start = state.x, None, state.v, state.held_start
-        inv_mass, external_accel, held_velocity = model.inv_mass, model.external_accel, model.held_velocity
+        inv_mass, held_velocity = model.inv_mass, model.held_velocity
+        gravity = tuple(float(g) for g in model.gravity)
+        external_accel = model.external_accel if model.has_tractions else None
         lam, mu = model.lam, model.mu
         forces = work
     blocks, colour_offsets, scatter, offsets, slots, vertex_forces, corner = step_arguments(model, forces)
@@ -200,7 +203,7 @@ def step(model, state, dt, step_count, damping, work):
     try:
         advance(x, rest, v, state.step, step_count, dt,
                 blocks, colour_offsets, scatter, model.material_id, lam, mu, offsets, slots,
-                vertex_forces, corner, inv_mass, external_accel, model.held, held_start, held_velocity,
+                vertex_forces, corner, inv_mass, gravity, external_accel, model.held, held_start, held_velocity,
                 *model.ground_arguments(), damping_factor, threads)
     finally:
         numba.set_num_threads(available)

@@ -39,15 +39,17 @@ class Body:
         self.csr_offsets, self.csr_slots = vertex_tet_csr(self.tets, self.node_count)
         self.blocks = build_block_layout(self.tets, self.Dm_inv, self.V0, self.node_count, scatter)
 
-    def forces(self, x, model, lam, mu):
+    def forces(self, x, model, lam, mu, inv_mass=None, gravity=(0.0, 0.0, 0.0), external_accel=None):
+        """The elastic forces at ``x`` [N] from one step of ``advance`` with ``dt = 1`` and ``v = 0``
+        (plus the external accelerations, and divided by the masses, where given)."""
         n = self.node_count
         x = np.array(x, dtype=np.float64)
         v = np.zeros_like(x)
         blocks, colour_offsets, scatter, offsets, slots, vf, corner = step_arguments(self, work_buffer(self))
         no_hold = np.zeros((n, 3), dtype=np.bool_)
         advance(x, None, v, 0, 1, 1.0, blocks, colour_offsets, scatter, MODEL_IDS[model], lam, mu, offsets, slots,
-                vf, corner, np.ones(n), np.zeros((n, 3)), no_hold, x.copy(), np.zeros((n, 3)),
-                None, None, None, numba.get_num_threads())
+                vf, corner, np.ones(n) if inv_mass is None else inv_mass, gravity, external_accel, no_hold, x.copy(),
+                np.zeros((n, 3)), None, None, None, numba.get_num_threads())
         return v
 
 
@@ -69,6 +71,21 @@ def test_blocked_forces_match_naive_numpy(model, scatter):
     f = body.forces(x, model, lam, mu)
     f_naive = naive.elastic_forces(x, body.X, body.tets, model, lam, mu)
     np.testing.assert_allclose(f, f_naive, rtol=0, atol=1e-11 * np.abs(f_naive).max())
+
+
+def test_gravity_alone_gives_the_bits_of_a_per_vertex_acceleration_array():
+    """Without tractions the step reads ``gravity`` and no per-vertex array (``external_accel``
+    None): the same velocities, to the bit, as the array of gravity in every row."""
+    points, tets, x = mesh((7, 5, 3))
+    body = Body(points, tets, "colour")
+    lam, mu = model_lame_parameters("stvk", E_PA, NU)
+    inv_mass = np.random.default_rng(3).uniform(0.5, 2.0, body.node_count)
+    gravity = (0.1, -0.2, -9.81)
+    alone = body.forces(x, "stvk", lam, mu, inv_mass, gravity, None)
+    rows = body.forces(x, "stvk", lam, mu, inv_mass, gravity, np.tile(gravity, (body.node_count, 1)))
+    assert np.array_equal(alone, rows)
+    still = body.forces(x, "stvk", lam, mu, inv_mass, (0.0, 0.0, 0.0), None)
+    assert np.abs(alone - still - np.array(gravity)).max() < 1e-9 * np.abs(still).max()
 
 
 def test_fewer_tets_than_a_block():

@@ -86,7 +86,7 @@ def float32_forces(body, u, model, lam, mu):
     blocks, colour_offsets, scatter, offsets, slots, vf, corner = step_arguments(body, body.work.forces)
     advance(u, body.X.astype(np.float32), v, 0, 1, np.float32(1.0), blocks, colour_offsets, scatter,
             MODEL_IDS[model], np.float32(lam), np.float32(mu), offsets, slots, vf, corner,
-            np.ones(n, np.float32), np.zeros((n, 3), np.float32), np.zeros((n, 3), np.bool_), u.copy(),
+            np.ones(n, np.float32), body.work.gravity, None, np.zeros((n, 3), np.bool_), u.copy(),
             np.zeros((n, 3), np.float32), None, None, None, 1)
     return v.astype(np.float64)
 
@@ -102,6 +102,7 @@ class SingleBody(Body):
                                          dtype=np.float32)
         self.rest_points, self.inv_mass = self.X, np.ones(self.node_count)
         self.external_accel = self.held_velocity = np.zeros((self.node_count, 3))
+        self.gravity, self.has_tractions = np.zeros(3), False
         self.work = SinglePrecisionWork(self)
 
 

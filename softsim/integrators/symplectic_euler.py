@@ -113,6 +113,16 @@ def ground_contact(x, rest, v, i, dt, inv_mass, ground):
 
 
 @njit_inline
+def vertex_accel(gravity, external_accel, i, k):
+    """Component ``k`` of vertex ``i``'s external acceleration [m/s^2]: ``external_accel[i, k]``, or
+    ``gravity[k]`` where ``external_accel`` is None (no tractions: every vertex has gravity alone,
+    and the step reads no per-vertex array for it)."""
+    if external_accel is None:
+        return gravity[k]
+    return external_accel[i, k]
+
+
+@njit_inline
 def move_vertex(x, v, i, dt, t_next, held, held_start, held_velocity):
     """``x[i] += dt v[i]``; held components follow ``start + velocity * t_next`` exactly."""
     for k in range(3):
@@ -124,14 +134,14 @@ def move_vertex(x, v, i, dt, t_next, held, held_start, held_velocity):
 
 
 @njit_inline
-def update_vertex(x, rest, v, i, fx, fy, fz, dt, t_next, inv_mass, external_accel, held, held_start, held_velocity,
-                  ground, damping_factor):
+def update_vertex(x, rest, v, i, fx, fy, fz, dt, t_next, inv_mass, gravity, external_accel, held, held_start,
+                  held_velocity, ground, damping_factor):
     """One step of vertex ``i`` from its elastic force ``(fx, fy, fz)`` [N] (see the module docstring);
     with a ground, zeroes the vertex's summed face area for the next step."""
     w = inv_mass[i]
-    v[i, 0] += dt * (fx * w + external_accel[i, 0])
-    v[i, 1] += dt * (fy * w + external_accel[i, 1])
-    v[i, 2] += dt * (fz * w + external_accel[i, 2])
+    v[i, 0] += dt * (fx * w + vertex_accel(gravity, external_accel, i, 0))
+    v[i, 1] += dt * (fy * w + vertex_accel(gravity, external_accel, i, 1))
+    v[i, 2] += dt * (fz * w + vertex_accel(gravity, external_accel, i, 2))
     if ground is not None:
         if position(x, rest, i, 2) < ground[0]:   # below the ground
             ground_contact(x, rest, v, i, dt, inv_mass, ground)
@@ -145,8 +155,8 @@ def update_vertex(x, rest, v, i, fx, fy, fz, dt, t_next, inv_mass, external_acce
 
 
 @njit_inline
-def update_from_forces(x, rest, v, vertex_forces, i, dt, t_next, inv_mass, external_accel, held, held_start,
-                       held_velocity, ground, damping_factor):
+def update_from_forces(x, rest, v, vertex_forces, i, dt, t_next, inv_mass, gravity, external_accel, held,
+                       held_start, held_velocity, ground, damping_factor):
     """``update_vertex`` with vertex ``i``'s summed force from ``vertex_forces``, which it zeroes."""
     fx = vertex_forces[i, 0]
     fy = vertex_forces[i, 1]
@@ -154,7 +164,7 @@ def update_from_forces(x, rest, v, vertex_forces, i, dt, t_next, inv_mass, exter
     vertex_forces[i, 0] = 0.0
     vertex_forces[i, 1] = 0.0
     vertex_forces[i, 2] = 0.0
-    update_vertex(x, rest, v, i, fx, fy, fz, dt, t_next, inv_mass, external_accel, held, held_start,
+    update_vertex(x, rest, v, i, fx, fy, fz, dt, t_next, inv_mass, gravity, external_accel, held, held_start,
                   held_velocity, ground, damping_factor)
 
 
@@ -183,7 +193,7 @@ def block_range_forces(x, rest, blocks, first, stop, model, lam, mu, scatter, ve
 @njit_parallel
 def advance(x, rest, v, step_start, step_count, dt,
             blocks, colour_offsets, scatter, model, lam, mu, offsets, slots, vertex_forces, corner_forces,
-            inv_mass, external_accel, held, held_start, held_velocity,
+            inv_mass, gravity, external_accel, held, held_start, held_velocity,
             ground, ground_faces, damping_factor, threads):
     """Advance positions ``x`` and velocities ``v`` (node_count, 3) [m, m/s] in place by ``step_count`` steps.
 
@@ -205,7 +215,8 @@ def advance(x, rest, v, step_start, step_count, dt,
     forces see; the contact of the vertex update reads them, not the neighbours' positions.  The
     csr scatter updates every vertex in a loop of its own after each step, with a ground after
     summing every part's face areas in one thread.
-    inv_mass (n,) [1/kg]; external_accel (n, 3) [m/s^2]: gravity plus tractions / mass.
+    inv_mass (n,) [1/kg]; gravity: 3-tuple [m/s^2]; external_accel: None (no tractions: gravity
+    alone), or (n, 3) [m/s^2] gravity plus tractions / mass.
     held (n, 3) bool; held_start, held_velocity (n, 3) [m, m/s]: prescribed motion of held components.
     ground: None, or the tuple ``ground_contact`` takes (small: it reaches every vertex update);
     ground_faces: None, or ``(part_face_offsets, part_faces)`` (``Model.ground_arguments``);
@@ -234,7 +245,7 @@ def advance(x, rest, v, step_start, step_count, dt,
                     if step > step_start:         # the previous step's update of this part's vertices
                         for r in range(run_offsets[part], run_offsets[part + 1]):
                             for i in range(owned_runs[r, 0], owned_runs[r, 1]):
-                                update_from_forces(x, rest, v, vertex_forces, i, dt, step * dt, inv_mass,
+                                update_from_forces(x, rest, v, vertex_forces, i, dt, step * dt, inv_mass, gravity,
                                                    external_accel, held, held_start, held_velocity, ground,
                                                    damping_factor)
                     if ground is not None:
@@ -244,7 +255,7 @@ def advance(x, rest, v, step_start, step_count, dt,
         if step_count > 0:
             for i in prange(node_count):
                 update_from_forces(x, rest, v, vertex_forces, i, dt, (step_start + step_count) * dt, inv_mass,
-                                   external_accel, held, held_start, held_velocity, ground, damping_factor)
+                                   gravity, external_accel, held, held_start, held_velocity, ground, damping_factor)
         return
     for step in range(step_start, step_start + step_count):      # csr
         t_next = (step + 1) * dt
@@ -257,8 +268,8 @@ def advance(x, rest, v, step_start, step_count, dt,
                 part_face_areas(x, rest, ground_faces, ground[3], part)
         for i in prange(node_count):
             fx, fy, fz = gather_vertex_force(corner_forces, offsets, slots, i)
-            update_vertex(x, rest, v, i, fx, fy, fz, dt, t_next, inv_mass, external_accel, held, held_start,
-                          held_velocity, ground, damping_factor)
+            update_vertex(x, rest, v, i, fx, fy, fz, dt, t_next, inv_mass, gravity, external_accel, held,
+                          held_start, held_velocity, ground, damping_factor)
 
 
 def step_arguments(model, work):
@@ -302,7 +313,8 @@ class SinglePrecisionWork:
     float64 holds 29 more bits, so the round trip returns the same float32 values (only
     displacements below about 1e-9 of the coordinates may move by one float32 unit): splitting a
     run into more calls changes next to nothing, and the same calls give the same bits.
-    inv_mass, external_accel, held_velocity: the model's arrays in float32; rest: the rest
+    inv_mass, held_velocity: the model's arrays in float32; gravity: a 3-tuple of float32;
+    external_accel: the model's in float32 where it has tractions, else None; rest: the rest
     positions, kept in float64 (only the ground reads them, ``position``: the depth is then exact
     to float32's spacing of the displacement, not of the coordinate); forces: the scatter's buffer
     (``force_buffer``).  Velocities are float32 as they are: a step's change of a velocity below
@@ -317,7 +329,8 @@ class SinglePrecisionWork:
         self.forces = force_buffer(model, np.float32)
         self.rest = model.rest_points
         self.inv_mass = model.inv_mass.astype(np.float32)
-        self.external_accel = model.external_accel.astype(np.float32)
+        self.gravity = tuple(np.float32(g) for g in model.gravity)
+        self.external_accel = model.external_accel.astype(np.float32) if model.has_tractions else None
         self.held_velocity = model.held_velocity.astype(np.float32)
 
     def load(self, state, rest_points):
