@@ -157,8 +157,9 @@ class BlockLayout:
     (part_count,): parts grouped by colour; run_offsets (part_count + 1,) int64, owned_runs (runs, 2)
     uint64: the vertices part p moves (``vertex_owners``), in runs of consecutive vertices, run r
     being vertices ``owned_runs[r, 0]`` to ``owned_runs[r, 1] - 1``, part p's runs
-    ``run_offsets[p]`` to ``run_offsets[p + 1] - 1``; scatter: ``"colour"`` or ``"csr"``; prefetch: how many blocks ahead the step
-    fetches rest data into L2 (``PREFETCH_BLOCKS_AHEAD``), or None: not at all (a small mesh);
+    ``run_offsets[p]`` to ``run_offsets[p + 1] - 1`` (``owned_vertex_runs``); scatter:
+    ``"colour"`` or ``"csr"``; prefetch: how many blocks ahead the step fetches rest data into
+    L2 (``PREFETCH_BLOCKS_AHEAD``), or None: not at all (a small mesh);
     first_offsets (block_count + 1,) int64, first_vertices uint32: the vertices block b is the
     first of its part to use, ``first_vertices[first_offsets[b]:first_offsets[b + 1]]``, whose
     rows the step fetches as far ahead (``first_uses``; empty when ``prefetch`` is None).
