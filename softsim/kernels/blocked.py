@@ -68,8 +68,7 @@ from ..materials.models import (
 )
 from ..mesh.reorder import SLABS
 from .jit import njit, njit_inline
-from .mat3 import (mat3_add_scaled_inline, mat3_ddot_inline, mat3_det_inline, mat3_mul_inline, mat3_mul_transpose_b_inline,
-                   mat3_scale_inline)
+from .mat3 import mat3_ddot_inline, mat3_det_inline, mat3_mul_inline, mat3_mul_transpose_b_inline, mat3_scale_inline
 from .polar3 import jacobi_rotation_and_stretch, newton_polar_finish, newton_polar_start
 from .simd import (CACHE_LINE_BYTES, FORCE_COLUMNS, add_corner_force, gather_corner_rows, prefer_wide_vectors,
                    prefetch_line)
