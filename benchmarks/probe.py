@@ -109,7 +109,8 @@ def asm():
     out = {}
     for name, function, dtype in loops:
         buf = np.zeros(blocked.ROWS * blocked.BLOCK, dtype=dtype)
-        rest = np.full((blocked.GROUPS, blocked.REST_ROWS, blocked.GROUP), 0.1, dtype=dtype)
+        lanes = blocked.lanes_per_group(dtype)
+        rest = np.full((blocked.BLOCK // lanes, blocked.REST_ROWS, lanes), 0.1, dtype=dtype)
         fn = getattr(blocked, function)
         fn(rest, buf, dtype(1.0), dtype(1.0), rest)
         code = "\n".join(fn.inspect_asm().values())

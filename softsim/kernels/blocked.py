@@ -5,8 +5,8 @@ compiles to scalar code.  Here the tets are grouped into blocks of ``BLOCK`` and
 block is one row of ``BLOCK`` lanes (structure of arrays), read from the block's rest data
 ``rest = block_rest[b]`` and a flat scratch buffer ``buf``:
 
-    rest rows 0..8   Dm^-1 (row-major)          [1/m]     lanes in groups of GROUP: rest[g, row, l]
-    rest row  9      rest volume V0             [m^3]     is lane g GROUP + l
+    rest rows 0..8   Dm^-1 (row-major)          [1/m]     lanes in groups of L: rest[g, row, l]
+    rest row  9      rest volume V0             [m^3]     is lane g L + l
     buf rows  0..11  corner positions x_c,k     [m]       gathered from ``x``: row 3 c + k
                      (or corner displacements u_c,k = x - X, in the displacement form below)
     buf rows 12..23  corner forces f_c,k        [N]       row 12 + 3 c + k
@@ -21,11 +21,15 @@ left to it the loops compiled to ymm on an AVX-512 Xeon (KVM); in zmm the step r
 and 1.03x as fast at 10k, 100k and 1M tets (StVK, 2 threads, one process), float32 StVK 1.09x,
 corotated 1.13x and neohookean 1.05x at 100k.  The rest rows are read in place:
 copying them into the buffer, as an earlier version did, cost as much as gathering the corners.
-They are stored in groups of ``GROUP`` lanes, a group's ten rows one after the other, so that a
-block's rest data is read nearly in address order.  Streaming such rows from memory on one core
-(float64): ten rows of 64 lanes (ten interleaved streams 512 B apart) 11 GB/s, groups of 16 lanes
-22 GB/s, of 8 lanes 31 GB/s; but LLVM does not vectorise a loop of fewer than 16 iterations that
-needs a runtime alias check, so groups hold 16.  On a mesh whose rest data exceed
+They are stored in groups of lanes, a group's ten rows one after the other, each row one cache
+line (``REST_ROW_BYTES``: 8 lanes in float64, 16 in float32, ``lanes_per_group``), so that a
+block's rest data is read in address order, a vector of lanes at a time.  Streaming such rows from
+memory on one core (float64): ten rows of 64 lanes (ten interleaved streams 512 B apart) 11 GB/s,
+groups of 16 lanes 22 GB/s, of 8 lanes 31 GB/s.  LLVM does not vectorise a loop of fewer than 16
+iterations that needs a runtime alias check unless told (``jit.VECTORIZER_MIN_TRIP_COUNT``);
+float64 groups held 16 lanes until it was.  With 8, one thread, the gather and the lane loop of
+StVK on the beam took 5.36 against 7.31 ns a tet at 100k tets (4.89 against 5.65 with one block's
+rest data in cache) and 9.65 against 12.13 at 2M (without the prefetches below).  On a mesh whose rest data exceed
 ``PREFETCH_FROM_BYTES``, before a group's lane loop, the same group of the block
 ``PREFETCH_BLOCKS_AHEAD`` further on is fetched into L2 (``prefetch_rows``): the hardware
 prefetcher alone left the lane loop waiting on memory.  So are, before each block, the rows of
@@ -52,6 +56,8 @@ import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
+from numba.extending import overload
+from numba.np.numpy_support import as_dtype
 
 from ..materials.models import (
     COROTATED,
@@ -74,8 +80,7 @@ from .simd import (CACHE_LINE_BYTES, FORCE_COLUMNS, add_corner_force, gather_cor
                    prefetch_line)
 
 BLOCK = 64                 # tets per block (a multiple of the SIMD width: 8 doubles in AVX-512)
-GROUP = 16                 # lanes per group of the rest data (the lane loop's trip count)
-GROUPS = BLOCK // GROUP
+REST_ROW_BYTES = 64        # bytes of a row of a group of rest data (one cache line): 8 float64 lanes, 16 float32
 ROW_DM_INV = 0             # rows of ``block_rest[b, g]``
 ROW_VOLUME = 9
 REST_ROWS = 10
@@ -90,6 +95,24 @@ ROWS = 37                  # rows of the scratch buffer; ``ROWS * BLOCK`` floats
 STAGE_DONE = 0.0           # corotated, row ROW_STAGE: forces stored
 STAGE_NEWTON = 1.0         # Newton's last two steps to take (det F > 0, the first four did not settle)
 STAGE_JACOBI = 2.0         # the Jacobi SVD to take (det F <= 0, or Newton did not converge)
+
+
+def lanes_per_group(dtype):
+    """Lanes of a group of rest data in ``dtype``: a group's rows are ``REST_ROW_BYTES`` each (8
+    float64 lanes, 16 float32), the trip count of the lane loops."""
+    return REST_ROW_BYTES // np.dtype(dtype).itemsize
+
+
+def group_lanes(rest):
+    """``lanes_per_group`` of the rest data ``rest`` (an array); in compiled code a constant."""
+    return lanes_per_group(rest.dtype)
+
+
+@overload(group_lanes, inline="always")
+def _group_lanes_constant(rest):
+    lanes = lanes_per_group(as_dtype(rest.dtype))
+    return lambda rest: lanes
+
 
 # Meshes whose rest data exceed ``PREFETCH_FROM_BYTES`` fetch the rest data of the block
 # ``PREFETCH_BLOCKS_AHEAD`` blocks ahead into L2, a group's rows (20 cache lines in float64) before
@@ -150,7 +173,8 @@ NEWTON_VECTOR_MIN_LANES = 11
 class BlockLayout:
     """The tets of a model in blocks of ``BLOCK`` for the vectorised step (see the module docstring).
 
-    tets (block_count, 4, BLOCK) uint32; rest (block_count, GROUPS, 10, GROUP) [1/m, m^3]; tet_count: real
+    tets (block_count, 4, BLOCK) uint32; rest (block_count, BLOCK // lanes, 10, lanes) [1/m, m^3], lanes
+    ``lanes_per_group`` of its dtype; tet_count: real
     tets (the last block is padded); part_offsets (part_count + 1,): part p is blocks
     ``part_offsets[p]`` to ``part_offsets[p + 1] - 1``; colour_offsets (colours + 1,), colour_parts
     (part_count,): parts grouped by colour; run_offsets (part_count + 1,) int64, owned_runs (runs, 2)
@@ -255,9 +279,9 @@ def block_layout(tets, Dm_inv, rest_volume, dtype=np.float64):
     """``(block_tets, block_rest)``: the tets in blocks of ``BLOCK``, structure of arrays.
 
     block_tets: (block_count, 4, BLOCK) uint32 corner vertex indices; block_rest: (block_count,
-    GROUPS, 10, GROUP) ``dtype`` (rounded from float64), rows ``Dm^-1`` (9, row-major) [1/m] and
-    ``V0`` [m^3].  Tet ``e`` is lane ``j = e % BLOCK`` of block ``e // BLOCK``, in block_rest
-    ``[e // BLOCK, j // GROUP, :, j % GROUP]``; padding lanes repeat the block's first tet with V0 = 0.
+    BLOCK // lanes, 10, lanes) ``dtype`` (rounded from float64; ``lanes = lanes_per_group(dtype)``),
+    rows ``Dm^-1`` (9, row-major) [1/m] and ``V0`` [m^3].  Tet ``e`` is lane ``j = e % BLOCK`` of block ``e // BLOCK``, in block_rest
+    ``[e // BLOCK, j // lanes, :, j % lanes]``; padding lanes repeat the block's first tet with V0 = 0.
     """
     m = tets.shape[0]
     block_count = -(-m // BLOCK)
@@ -268,7 +292,9 @@ def block_layout(tets, Dm_inv, rest_volume, dtype=np.float64):
     rest = np.empty((padded, 10))
     rest[:, :9] = Dm_inv.reshape(m, 9)[lane_tet]
     rest[:, 9] = np.where(np.arange(padded) < m, rest_volume[lane_tet], 0.0)
-    block_rest = np.ascontiguousarray(rest.reshape(block_count, GROUPS, GROUP, 10).transpose(0, 1, 3, 2), dtype=dtype)
+    lanes = lanes_per_group(dtype)
+    block_rest = np.ascontiguousarray(rest.reshape(block_count, BLOCK // lanes, lanes, 10).transpose(0, 1, 3, 2),
+                                      dtype=dtype)
     return block_tets.astype(np.uint32), block_rest
 
 
@@ -411,7 +437,7 @@ def gather_corners(x, block_tets, b, buf):
 
 @njit_inline
 def group_rows(rest, g, upcoming):
-    """Group ``g``'s rest rows (10, ``GROUP``) of a block's ``rest``; with ``upcoming`` (a later
+    """Group ``g``'s rest rows (10, ``group_lanes(rest)``) of a block's ``rest``; with ``upcoming`` (a later
     block's rest, or None), first fetches group ``g`` of that block into L2.  Where ``upcoming``
     is None, Numba prunes the prefetch after inlining."""
     if upcoming is not None:
@@ -454,7 +480,7 @@ def prefetch_rows(rows):
 def lane_deformation_gradient(rest, l, buf, j):
     """``F = Ds Dm^-1`` of lane ``j`` (9-tuple), ``Ds`` the edges ``x_c - x_0`` as columns; when the
     corner rows hold displacements, the same product is ``H = Du Dm^-1 = F - I``.  rest: the rest
-    rows of the lane's group (10, GROUP), ``l``: the lane in it."""
+    rows of the lane's group (10, lanes), ``l``: the lane in it."""
     d = (buf[(ROW_X + 3) * BLOCK + j] - buf[ROW_X * BLOCK + j],
          buf[(ROW_X + 6) * BLOCK + j] - buf[ROW_X * BLOCK + j],
          buf[(ROW_X + 9) * BLOCK + j] - buf[ROW_X * BLOCK + j],
@@ -503,20 +529,22 @@ def lane_store_component(buf, j, k, h1, h2, h3):
 @njit
 def stvk_block(rest, buf, lam, mu, upcoming):
     prefer_wide_vectors()
-    for g in range(GROUPS):
+    lanes = group_lanes(rest)
+    for g in range(BLOCK // lanes):
         group = group_rows(rest, g, upcoming)
-        for l in range(GROUP):
-            j = g * GROUP + l
+        for l in range(lanes):
+            j = g * lanes + l
             lane_store_forces(group, l, buf, j, _stvk_first_piola(lane_deformation_gradient(group, l, buf, j), lam, mu))
 
 
 @njit
 def neohookean_block(rest, buf, lam, mu, upcoming):
     prefer_wide_vectors()
-    for g in range(GROUPS):
+    lanes = group_lanes(rest)
+    for g in range(BLOCK // lanes):
         group = group_rows(rest, g, upcoming)
-        for l in range(GROUP):
-            j = g * GROUP + l
+        for l in range(lanes):
+            j = g * lanes + l
             lane_store_forces(group, l, buf, j, _neohookean_first_piola(lane_deformation_gradient(group, l, buf, j), lam, mu))
 
 
@@ -578,11 +606,12 @@ def corotated_block(rest, buf, lam, mu, upcoming):
     with the Jacobi SVD, as ``polar3.polar_rotation`` does per tet.  Every lane gets the per-tet
     law's forces to round-off."""
     prefer_wide_vectors()
+    lanes = group_lanes(rest)
     pending = 0
-    for g in range(GROUPS):
+    for g in range(BLOCK // lanes):
         group = group_rows(rest, g, upcoming)
-        for l in range(GROUP):
-            j = g * GROUP + l
+        for l in range(lanes):
+            j = g * lanes + l
             F = lane_deformation_gradient(group, l, buf, j)
             Z, inv, det, converged = newton_polar_start(F)
             lane_store_corotated_forces(group, l, buf, j, F, Z, inv, lam, mu)
@@ -598,10 +627,10 @@ def corotated_block(rest, buf, lam, mu, upcoming):
     if newton > NEWTON_VECTOR_MIN_LANES:
         # Written out, not a call of lane_finish_newton: through that njit_inline helper this loop
         # compiled to scalar code (50 ns a lane of the block against 60 ns a listed scalar lane).
-        for g in range(GROUPS):
+        for g in range(BLOCK // lanes):
             group = rest[g]
-            for l in range(GROUP):                # packed SIMD over all lanes, stores masked
-                j = g * GROUP + l
+            for l in range(lanes):                # packed SIMD over all lanes, stores masked
+                j = g * lanes + l
                 if buf[ROW_STAGE * BLOCK + j] == STAGE_NEWTON:
                     F = lane_deformation_gradient(group, l, buf, j)
                     Z, inv, converged = newton_polar_finish(lane_load_newton(buf, j),
@@ -611,17 +640,17 @@ def corotated_block(rest, buf, lam, mu, upcoming):
     elif newton > 0:
         for k in range(list_lanes(buf, STAGE_NEWTON)):   # scalar, one listed lane at a time
             j = int(buf[ROW_LIST * BLOCK + k])
-            lane_finish_newton(rest[j // GROUP], j % GROUP, buf, j, lam, mu)
+            lane_finish_newton(rest[j // lanes], j % lanes, buf, j, lam, mu)
     fallbacks = 0
     for j in range(BLOCK):
         fallbacks += 1 if buf[ROW_STAGE * BLOCK + j] == STAGE_JACOBI else 0
     if fallbacks > FALLBACK_VECTOR_MIN_LANES:
         # The two fallback loops repeat their three-line body: moved into an njit_inline helper,
         # this loop compiled to scalar code (903 -> 1805 scalar instructions, inspect_asm).
-        for g in range(GROUPS):
+        for g in range(BLOCK // lanes):
             group = rest[g]
-            for l in range(GROUP):                # packed SIMD over all lanes, stores masked
-                j = g * GROUP + l
+            for l in range(lanes):                # packed SIMD over all lanes, stores masked
+                j = g * lanes + l
                 if buf[ROW_STAGE * BLOCK + j] == STAGE_JACOBI:
                     F = lane_deformation_gradient(group, l, buf, j)
                     R, _, _, _ = jacobi_rotation_and_stretch(F)
@@ -629,49 +658,53 @@ def corotated_block(rest, buf, lam, mu, upcoming):
     elif fallbacks > 0:
         for k in range(list_lanes(buf, STAGE_JACOBI)):   # scalar, one listed lane at a time
             j = int(buf[ROW_LIST * BLOCK + k])
-            group = rest[j // GROUP]
-            F = lane_deformation_gradient(group, j % GROUP, buf, j)
+            group = rest[j // lanes]
+            F = lane_deformation_gradient(group, j % lanes, buf, j)
             R, _, _, _ = jacobi_rotation_and_stretch(F)
-            lane_store_corotated_forces(group, j % GROUP, buf, j, F, R, 1.0, lam, mu)
+            lane_store_corotated_forces(group, j % lanes, buf, j, F, R, 1.0, lam, mu)
 
 
 @njit
 def linear_block(rest, buf, lam, mu, upcoming):
     prefer_wide_vectors()
-    for g in range(GROUPS):
+    lanes = group_lanes(rest)
+    for g in range(BLOCK // lanes):
         group = group_rows(rest, g, upcoming)
-        for l in range(GROUP):
-            j = g * GROUP + l
+        for l in range(lanes):
+            j = g * lanes + l
             lane_store_forces(group, l, buf, j, _linear_first_piola(lane_deformation_gradient(group, l, buf, j), lam, mu))
 
 
 @njit
 def stvk_displacement_block(rest, buf, lam, mu, upcoming):
     prefer_wide_vectors()
-    for g in range(GROUPS):
+    lanes = group_lanes(rest)
+    for g in range(BLOCK // lanes):
         group = group_rows(rest, g, upcoming)
-        for l in range(GROUP):
-            j = g * GROUP + l
+        for l in range(lanes):
+            j = g * lanes + l
             lane_store_forces(group, l, buf, j, _stvk_first_piola_displacement(lane_deformation_gradient(group, l, buf, j), lam, mu))
 
 
 @njit
 def neohookean_displacement_block(rest, buf, lam, mu, upcoming):
     prefer_wide_vectors()
-    for g in range(GROUPS):
+    lanes = group_lanes(rest)
+    for g in range(BLOCK // lanes):
         group = group_rows(rest, g, upcoming)
-        for l in range(GROUP):
-            j = g * GROUP + l
+        for l in range(lanes):
+            j = g * lanes + l
             lane_store_forces(group, l, buf, j, _neohookean_first_piola_displacement(lane_deformation_gradient(group, l, buf, j), lam, mu))
 
 
 @njit
 def linear_displacement_block(rest, buf, lam, mu, upcoming):
     prefer_wide_vectors()
-    for g in range(GROUPS):
+    lanes = group_lanes(rest)
+    for g in range(BLOCK // lanes):
         group = group_rows(rest, g, upcoming)
-        for l in range(GROUP):
-            j = g * GROUP + l
+        for l in range(lanes):
+            j = g * lanes + l
             lane_store_forces(group, l, buf, j, _linear_first_piola_displacement(lane_deformation_gradient(group, l, buf, j), lam, mu))
 
 
@@ -680,10 +713,11 @@ def volume_ratio_and_stretch_block(rest, buf):
     """``J = det F`` and the RMS stretch ``|F| / sqrt(3)`` of each lane, from the corner positions
     in ``buf``, into rows ``ROW_J`` and ``ROW_STRETCH`` of ``buf`` (the guard's element checks)."""
     prefer_wide_vectors()
-    for g in range(GROUPS):
+    lanes = group_lanes(rest)
+    for g in range(BLOCK // lanes):
         group = rest[g]
-        for l in range(GROUP):
-            j = g * GROUP + l
+        for l in range(lanes):
+            j = g * lanes + l
             F = lane_deformation_gradient(group, l, buf, j)
             buf[ROW_J * BLOCK + j] = mat3_det_inline(F)
             buf[ROW_STRETCH * BLOCK + j] = math.sqrt(mat3_ddot_inline(F, F) / 3.0)

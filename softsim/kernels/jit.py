@@ -16,6 +16,7 @@ import hashlib
 import importlib.metadata
 import os
 
+import llvmlite.binding
 import numba
 
 # ``fastmath={"contract"}`` lets LLVM fuse a multiply and an add into one FMA (one rounding instead of
@@ -26,6 +27,14 @@ import numba
 # it chooses, which need not be the same places in a packed loop as in a scalar function: the two
 # agree to round-off, not bit for bit.  The same code gives the same bits on every run.
 JIT_OPTIONS = dict(cache=True, nogil=True, fastmath={"contract"}, error_model="numpy")
+
+# LLVM's loop vectoriser leaves a loop of fewer than 16 known iterations scalar when it would need
+# a run-time check that two arrays do not overlap (its ``-vectorizer-min-trip-count``).  The float64
+# lane loops of ``kernels.blocked`` run 8 iterations (a group of lanes whose rest rows are one cache
+# line each) and read two arrays: softsim lowers the threshold to 8 for the process's LLVM.  It
+# only lets such short loops be vectorised where the cost model finds it pays.
+VECTORIZER_MIN_TRIP_COUNT = 8
+llvmlite.binding.set_option("softsim", f"-vectorizer-min-trip-count={VECTORIZER_MIN_TRIP_COUNT}")
 
 # Threading layer, chosen by measurement (beam, 2 threads, M tet-steps/s, medians of 5 timings per
 # process, processes alternating; quiet machine / one core held by another process, two sessions
