@@ -7,6 +7,7 @@ step loop is compiled (Numba caches it on disk).
 """
 
 import math
+import platform
 
 import h5py
 import numba
@@ -14,6 +15,7 @@ import numpy as np
 import pytest
 
 from softsim.integrators.stability import exact_stable_step
+from softsim.integrators.symplectic_euler import work_buffer
 from softsim.integrators.timestep import AUTO_SAFETY
 from softsim.model import initial_state
 from softsim.simulation import prepare, simulate, step
@@ -131,6 +133,26 @@ def test_free_fall_matches_discrete_symplectic_euler(scene, model_name):
         np.testing.assert_allclose(state.x, expected, rtol=0, atol=50 * EPS * np.abs(expected).max())
         np.testing.assert_allclose(state.v, np.broadcast_to(n * dt * g, state.v.shape),
                                    rtol=0, atol=1e-10 * n * dt * np.linalg.norm(g))
+
+
+def test_the_float32_step_flushes_subnormal_numbers_and_leaves_the_caller_s_unflushed(scene):
+    """A gravity below float32's smallest normal number is read as zero inside the step
+    (``kernels.simd.flush_subnormals``: x86's FTZ and DAZ), so a body at rest stays at rest to the
+    bit (in float32 its forces are exactly zero: the laws take ``H = 0``), where plain arithmetic
+    would give it a subnormal velocity; after the step the calling thread computes subnormals
+    again.  (In float64 a body at rest feels round-off forces of ``Ds Dm^-1``, which hide a
+    subnormal gravity: ``tests/test_simd.py`` checks the flush there.)"""
+    dtype, tiny = np.float32, 1e-39
+    s = scene(gravity=[0.0, 0.0, -tiny], precision="float32")
+    prepared, state, _ = start(s)
+    x0 = state.x.copy()
+    unflushed = dtype(prepared.plan.dt) * dtype(-tiny)
+    assert unflushed != 0.0 and abs(unflushed) < np.finfo(dtype).tiny       # what no flush would add
+    run_steps(prepared, state, work_buffer(prepared.model), 3)
+    if platform.machine().lower() in ("x86_64", "amd64"):
+        assert not state.v.any()
+        np.testing.assert_array_equal(state.x, x0)
+    assert dtype(tiny) * dtype(1.0) != 0.0
 
 
 # ---------------------------------------------------------------------------------------------

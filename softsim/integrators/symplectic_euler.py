@@ -27,7 +27,7 @@ from numba import prange
 from ..kernels.blocked import BLOCK, ROWS, block_forces, prefetch_vertex_rows, scatter_block, store_block_corners
 from ..kernels.forces import gather_vertex_force
 from ..kernels.jit import njit, njit_inline, njit_parallel
-from ..kernels.simd import FORCE_COLUMNS
+from ..kernels.simd import FORCE_COLUMNS, flush_subnormals, restore_float_control
 
 
 # Tets per thread of the step: fewer threads for a smaller mesh, one below 2 x this.  Each step
@@ -224,7 +224,9 @@ def advance(x, rest, v, step_start, step_count, dt,
     threads: ``numba.get_num_threads()``.
 
     Every vertex sums its forces in a fixed order, whatever the thread count: a run gives the same
-    bits every time.
+    bits every time.  The forces and every vertex update are computed with subnormal numbers flushed
+    to zero (``kernels.simd.flush_subnormals``: in float32 the front of a wave is made of them, and
+    each cost a microcode assist), each thread's control word restored after its part or chunk.
     """
     node_count = x.shape[0]
     block_count = blocks[0].shape[0]
@@ -241,6 +243,7 @@ def advance(x, rest, v, step_start, step_count, dt,
         for step in range(step_start, step_start + step_count):
             for colour in range(colour_offsets.shape[0] - 1):
                 for k in prange(colour_offsets[colour], colour_offsets[colour + 1]):
+                    control = flush_subnormals()
                     part = colour_parts[k]
                     if step > step_start:         # the previous step's update of this part's vertices
                         for r in range(run_offsets[part], run_offsets[part + 1]):
@@ -252,24 +255,36 @@ def advance(x, rest, v, step_start, step_count, dt,
                         part_face_areas(x, rest, ground_faces, ground[3], part)
                     block_range_forces(x, rest, blocks, part_offsets[part], part_offsets[part + 1],
                                        model, lam, mu, scatter, vertex_forces, corner_forces)
+                    restore_float_control(control)
         if step_count > 0:
-            for i in prange(node_count):
-                update_from_forces(x, rest, v, vertex_forces, i, dt, (step_start + step_count) * dt, inv_mass,
-                                   gravity, external_accel, held, held_start, held_velocity, ground, damping_factor)
+            chunks = min(threads, node_count)
+            for chunk in prange(chunks):
+                control = flush_subnormals()
+                for i in range(chunk * node_count // chunks, (chunk + 1) * node_count // chunks):
+                    update_from_forces(x, rest, v, vertex_forces, i, dt, (step_start + step_count) * dt, inv_mass,
+                                       gravity, external_accel, held, held_start, held_velocity, ground,
+                                       damping_factor)
+                restore_float_control(control)
         return
     for step in range(step_start, step_start + step_count):      # csr
         t_next = (step + 1) * dt
         chunks = min(threads, block_count)
         for chunk in prange(chunks):
+            control = flush_subnormals()
             block_range_forces(x, rest, blocks, chunk * block_count // chunks, (chunk + 1) * block_count // chunks,
                                model, lam, mu, scatter, vertex_forces, corner_forces)
+            restore_float_control(control)
         if ground is not None:
             for part in range(part_offsets.shape[0] - 1):     # boundary faces only: one thread
                 part_face_areas(x, rest, ground_faces, ground[3], part)
-        for i in prange(node_count):
-            fx, fy, fz = gather_vertex_force(corner_forces, offsets, slots, i)
-            update_vertex(x, rest, v, i, fx, fy, fz, dt, t_next, inv_mass, gravity, external_accel, held,
-                          held_start, held_velocity, ground, damping_factor)
+        vertex_chunks = min(threads, node_count)
+        for chunk in prange(vertex_chunks):
+            control = flush_subnormals()
+            for i in range(chunk * node_count // vertex_chunks, (chunk + 1) * node_count // vertex_chunks):
+                fx, fy, fz = gather_vertex_force(corner_forces, offsets, slots, i)
+                update_vertex(x, rest, v, i, fx, fy, fz, dt, t_next, inv_mass, gravity, external_accel, held,
+                              held_start, held_velocity, ground, damping_factor)
+            restore_float_control(control)
 
 
 def step_arguments(model, work):

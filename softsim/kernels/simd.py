@@ -29,6 +29,12 @@ And a hint Numba has no word for:
   2: ``prefetcht1`` on x86), so that the rest data of a block are on their way while an earlier
   block computes (``kernels.blocked``).
 
+And the floating-point control Numba leaves alone:
+
+- ``flush_subnormals`` / ``restore_float_control``: a thread's x86 FTZ and DAZ bits on for the
+  step's parts and back off after them: in float32 the front of a wave is made of subnormal
+  numbers, each a microcode assist (3-4x slower steps until the wave fills the mesh).
+
 All take C-contiguous arrays (the typing rejects others) and check no bounds (the block layout
 guarantees the indices); the gather and the scatter assume 3 columns in ``x`` and
 ``FORCE_COLUMNS`` in the vertex forces, which their callers in ``kernels.blocked`` check.  A
@@ -296,6 +302,73 @@ def prefer_wide_vectors(typingctx):
             attributes.alignstack = function.attributes.alignstack
             attributes.personality = function.attributes.personality
             function.attributes = attributes
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+# MXCSR bits (x86): FTZ, results below the smallest normal number are flushed to zero; DAZ, such
+# inputs are read as zero.
+MXCSR_FLUSH_SUBNORMALS = 0x8040
+
+
+def _is_x86(context):
+    triple = getattr(context.codegen(), "_tm", None)
+    triple = triple.triple if triple is not None else binding.get_process_triple()
+    return triple.startswith(("x86_64", "i686", "i386"))
+
+
+def _mxcsr_function(builder, name):
+    i8_ptr = ir.IntType(8).as_pointer()
+    return builder.module.globals.get(name) or ir.Function(
+        builder.module, ir.FunctionType(ir.VoidType(), [i8_ptr]), name)
+
+
+@intrinsic
+def flush_subnormals(typingctx):
+    """Have this thread's floating-point unit treat subnormal numbers as zero (x86: set FTZ and DAZ
+    in MXCSR); returns the previous control word for ``restore_float_control``.  Elsewhere a no-op
+    returning 0.
+
+    A subnormal (below 1.2e-38 in float32, 2.2e-308 in float64) costs an x86 core a microcode
+    assist of about a hundred cycles per operation.  In an explicit step they appear at the
+    front of a wave that has not yet crossed the mesh, where displacements decay element by
+    element: on the 310k-tet beam in float32, steps 33-113 ran at 61-96 M tet-steps/s against 244
+    once the wave had filled the beam.  Flushed, such a value changes nothing a float of that
+    precision can hold next to the others."""
+    sig = types.uint32()
+
+    def codegen(context, builder, signature, args):
+        i32 = ir.IntType(32)
+        if not _is_x86(context):
+            return ir.Constant(i32, 0)
+        slot = builder.alloca(i32)
+        pointer = builder.bitcast(slot, ir.IntType(8).as_pointer())
+        builder.call(_mxcsr_function(builder, "llvm.x86.sse.stmxcsr"), [pointer])
+        old = builder.load(slot)
+        builder.store(builder.or_(old, ir.Constant(i32, MXCSR_FLUSH_SUBNORMALS)), slot)
+        builder.call(_mxcsr_function(builder, "llvm.x86.sse.ldmxcsr"), [pointer])
+        return old
+
+    return sig, codegen
+
+
+@intrinsic
+def restore_float_control(typingctx, control):
+    """Restore the floating-point control word ``control`` that ``flush_subnormals`` returned
+    (x86: MXCSR); elsewhere a no-op."""
+    if not isinstance(control, types.Integer):
+        return None
+    sig = types.void(control)
+
+    def codegen(context, builder, signature, args):
+        if not _is_x86(context):
+            return context.get_dummy_value()
+        i32 = ir.IntType(32)
+        slot = builder.alloca(i32)
+        builder.store(builder.trunc(args[0], i32) if args[0].type.width > 32 else args[0], slot)
+        builder.call(_mxcsr_function(builder, "llvm.x86.sse.ldmxcsr"),
+                     [builder.bitcast(slot, ir.IntType(8).as_pointer())])
         return context.get_dummy_value()
 
     return sig, codegen
