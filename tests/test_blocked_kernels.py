@@ -14,9 +14,10 @@ import numpy as np
 import pytest
 
 import naive
-from softsim.integrators.symplectic_euler import advance, step_arguments, work_buffer
-from softsim.kernels.blocked import (BLOCK, PREFETCH_BLOCKS_AHEAD, PREFETCH_FROM_BYTES, build_block_layout, first_uses,
-                                     owned_vertex_runs, prefetching)
+from softsim.integrators.symplectic_euler import advance, force_buffer, step_arguments, work_buffer
+from softsim.kernels.blocked import (BLOCK, PREFETCH_BLOCKS_AHEAD, PREFETCH_FROM_BYTES, build_block_layout,
+                                     cache_aligned_scratch, first_uses, owned_vertex_runs, prefetching)
+from softsim.kernels.simd import CACHE_LINE_BYTES
 from softsim.kernels.rest_state import rest_state, vertex_tet_csr
 from softsim.materials.models import MODEL_IDS, model_lame_parameters
 from softsim.mesh.generate import structured_box
@@ -86,6 +87,29 @@ def test_gravity_alone_gives_the_bits_of_a_per_vertex_acceleration_array():
     assert np.array_equal(alone, rows)
     still = body.forces(x, "stvk", lam, mu, inv_mass, (0.0, 0.0, 0.0), None)
     assert np.abs(alone - still - np.array(gravity)).max() < 1e-9 * np.abs(still).max()
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_rest_data_vertex_forces_and_scratch_start_at_a_cache_line(dtype):
+    """The rest data (rows of one cache line), the colour scatter's vertex forces (a vector row per
+    vertex) and the step's scratch buffer start at a cache line, whatever NumPy's and Numba's
+    allocators give (16 and 32 bytes); the vertex forces start zeroed."""
+    points, tets, _ = mesh((7, 5, 3))
+    body = Body(points, tets, "colour")
+    layout = build_block_layout(body.tets, body.Dm_inv, body.V0, body.node_count, dtype=dtype)
+    assert layout.rest.ctypes.data % CACHE_LINE_BYTES == 0 and layout.rest.flags.c_contiguous
+    body.precision = np.dtype(dtype).name
+    forces = force_buffer(body, dtype)
+    assert forces.ctypes.data % CACHE_LINE_BYTES == 0 and forces.dtype == dtype and not forces.any()
+    for size in (1, 37 * BLOCK, 1000):
+        buf = scratch_address(size, np.zeros(1, dtype))
+        assert buf[0] % CACHE_LINE_BYTES == 0 and buf[1] == size
+
+
+@numba.njit
+def scratch_address(size, like):
+    buf = cache_aligned_scratch(size, like)
+    return buf.ctypes.data, buf.size
 
 
 def test_fewer_tets_than_a_block():

@@ -24,7 +24,8 @@ gathered per vertex: ``kernels.blocked`` ``scatter='csr'``).
 import numpy as np
 from numba import prange
 
-from ..kernels.blocked import BLOCK, ROWS, block_forces, prefetch_vertex_rows, scatter_block, store_block_corners
+from ..kernels.blocked import (BLOCK, ROWS, block_forces, cache_aligned_empty, cache_aligned_scratch,
+                               prefetch_vertex_rows, scatter_block, store_block_corners)
 from ..kernels.forces import gather_vertex_force
 from ..kernels.jit import njit, njit_inline, njit_parallel
 from ..kernels.simd import FORCE_COLUMNS, flush_subnormals, restore_float_control
@@ -179,7 +180,7 @@ def block_range_forces(x, rest, blocks, first, stop, model, lam, mu, scatter, ve
     block_rest = blocks[1]
     tet_count = blocks[2]
     prefetch = blocks[7]
-    buf = np.empty(ROWS * BLOCK, dtype=block_rest.dtype)
+    buf = cache_aligned_scratch(ROWS * BLOCK, block_rest)
     for b in range(first, stop):
         prefetch_vertex_rows(x, vertex_forces, blocks[8], blocks[9], b, prefetch)
         block_forces(x, block_tets, block_rest, b, model, lam, mu, buf, rest, prefetch)
@@ -314,9 +315,12 @@ def step_arguments(model, work):
 
 def force_buffer(model, dtype=np.float64):
     """Vertex forces (n, ``FORCE_COLUMNS``) for the colour scatter (x, y, z and a zero: a vector
-    per vertex, ``kernels.simd.add_corner_force``), or per-(tet, corner) forces (m, 4, 3) for csr."""
+    per vertex, ``kernels.simd.add_corner_force``, starting at a cache line), or per-(tet, corner)
+    forces (m, 4, 3) for csr."""
     if model.blocks.scatter == "colour":
-        return np.zeros((model.node_count, FORCE_COLUMNS), dtype=dtype)
+        forces = cache_aligned_empty((model.node_count, FORCE_COLUMNS), dtype)
+        forces[...] = 0.0
+        return forces
     return np.empty((model.tet_count, 4, 3), dtype=dtype)
 
 

@@ -1,9 +1,8 @@
 """Per-element measures of the current configuration, for the guard's once-per-frame checks."""
 
-import numpy as np
 from numba import prange
 
-from .blocked import BLOCK, ROW_J, ROW_STRETCH, gather_corners, volume_ratio_and_stretch_block
+from .blocked import BLOCK, ROW_J, ROW_STRETCH, cache_aligned_scratch, gather_corners, volume_ratio_and_stretch_block
 from .deformation import deformation_gradient, edge_matrix
 from .energy import CHUNKS        # fixed ranges of blocks, a scratch buffer each
 from .jit import njit_parallel
@@ -28,7 +27,7 @@ def block_volume_ratios_and_stretches(x, block_tets, block_rest, tet_count, J, s
     blocks = block_tets.shape[0]
     chunks = min(CHUNKS, blocks)
     for c in prange(chunks):
-        buf = np.empty((ROW_STRETCH + 1) * BLOCK)       # the corners, J and the stretch
+        buf = cache_aligned_scratch((ROW_STRETCH + 1) * BLOCK, block_rest)   # the corners, J and the stretch
         for b in range(c * blocks // chunks, (c + 1) * blocks // chunks):
             gather_corners(x, block_tets, b, buf)
             volume_ratio_and_stretch_block(block_rest[b], buf)
