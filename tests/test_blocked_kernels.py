@@ -17,8 +17,8 @@ import naive
 from softsim.integrators.symplectic_euler import advance, force_buffer, step_arguments, work_buffer
 from softsim.kernels.blocked import (BLOCK, PREFETCH_BLOCKS_AHEAD, PREFETCH_FROM_BYTES, build_block_layout,
                                      cache_aligned_scratch, first_uses, owned_vertex_runs, prefetching)
-from softsim.kernels.simd import CACHE_LINE_BYTES
 from softsim.kernels.rest_state import rest_state, vertex_tet_csr
+from softsim.kernels.simd import CACHE_LINE_BYTES
 from softsim.materials.models import MODEL_IDS, model_lame_parameters
 from softsim.mesh.generate import structured_box
 from softsim.mesh.reorder import renumber_for_locality
