@@ -27,7 +27,7 @@ def block_volume_ratios_and_stretches(x, block_tets, block_rest, tet_count, J, s
     blocks = block_tets.shape[0]
     chunks = min(CHUNKS, blocks)
     for c in prange(chunks):
-        buf = cache_aligned_scratch((ROW_STRETCH + 1) * BLOCK, block_rest)   # the corners, J and the stretch
+        buf = cache_aligned_scratch((ROW_STRETCH + 1) * BLOCK, x)   # the corners (the dtype of x), J and the stretch
         for b in range(c * blocks // chunks, (c + 1) * blocks // chunks):
             gather_corners(x, block_tets, b, buf)
             volume_ratio_and_stretch_block(block_rest[b], buf)
