@@ -2,7 +2,11 @@
 ``np.add.at``, bit for bit, in both precisions; and through ``kernels.blocked`` on a whole block.
 The prefetch hint: what it compiles to, and that it changes nothing.  The subnormal flush."""
 
+import ctypes
+import mmap
 import platform
+import subprocess
+import sys
 
 import numba
 import numpy as np
@@ -25,7 +29,12 @@ from softsim.kernels.simd import (
 
 @njit
 def gather_rows(x, tets, tet_offset, buf, buf_offset):
-    gather_corner_rows(x, tets, tet_offset, buf, buf_offset, 32)
+    gather_corner_rows(x, tets, tet_offset, buf, buf_offset, 32, False)
+
+
+@njit
+def gather_whole_rows(x, tets, tet_offset, buf, buf_offset):
+    gather_corner_rows(x, tets, tet_offset, buf, buf_offset, 32, True)
 
 
 @njit
@@ -34,21 +43,23 @@ def add_forces(forces, vertices, buf, row_stride):
         add_corner_force(forces, vertices[j], buf, j, row_stride)
 
 
-def gather_rows_compiled(monkeypatch, by_transpose):
-    """A fresh ``gather_rows`` whose gather compiles one way or the other (both are correct on
-    every target; ``simd.gather_by_transpose`` picks the faster one for the target)."""
+def gather_rows_compiled(monkeypatch, by_transpose, whole_rows=False):
+    """A fresh ``gather_rows`` (``gather_whole_rows``) whose gather compiles one way or the other
+    (both are correct on every target; ``simd.gather_by_transpose`` picks the faster one)."""
     monkeypatch.setattr(simd, "GATHER_BY_TRANSPOSE", by_transpose)
-    return numba.njit(gather_rows.py_func)
+    return numba.njit((gather_whole_rows if whole_rows else gather_rows).py_func)
 
 
+@pytest.mark.parametrize("whole_rows", [False, True])
 @pytest.mark.parametrize("by_transpose", [False, True])
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
-def test_gather_corner_rows_is_fancy_indexing(dtype, by_transpose, monkeypatch):
-    gather = gather_rows_compiled(monkeypatch, by_transpose)
+def test_gather_corner_rows_is_fancy_indexing(dtype, by_transpose, whole_rows, monkeypatch):
+    gather = gather_rows_compiled(monkeypatch, by_transpose, whole_rows)
     rng = np.random.default_rng(1)
     x = rng.standard_normal((50, 3)).astype(dtype)
-    tets = rng.integers(0, 50, size=(3, 40)).astype(np.uint32)
-    tets.reshape(-1)[60] = 49                    # the last vertex: its row ends the array
+    last = 48 if whole_rows else 49              # whole rows: the caller keeps off x's last row
+    tets = rng.integers(0, last, size=(3, 40)).astype(np.uint32)
+    tets.reshape(-1)[60] = last                  # masked: the last vertex, whose row ends the array
     buf = np.full(200, np.nan, dtype=dtype)
     gather(x, tets, 45, buf, 7)                  # lanes 45..76 of the flat tets, from buf[7]
     lanes = tets.reshape(-1)[45:77]
@@ -74,12 +85,16 @@ def test_add_corner_force_is_add_at(dtype):
     assert not forces[:, 3].any()
 
 
+@pytest.mark.parametrize("uses_last_row", [False, True])
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
-def test_block_gather_and_scatter(dtype):
+def test_block_gather_and_scatter(dtype, uses_last_row):
+    """A block off x's last row gathers whole rows, one on it masked ones: both as fancy indexing."""
     rng = np.random.default_rng(3)
     n = 100
     x = rng.standard_normal((n, 3)).astype(dtype)
-    block_tets = rng.integers(0, n, size=(2, 4, BLOCK)).astype(np.uint32)
+    block_tets = rng.integers(0, n - 1, size=(2, 4, BLOCK)).astype(np.uint32)
+    if uses_last_row:
+        block_tets[1, 2, 17] = n - 1
     buf = rng.standard_normal(ROWS * BLOCK).astype(dtype)
     gather_corners(x, block_tets, 1, buf)
     for c in range(4):
@@ -94,6 +109,45 @@ def test_block_gather_and_scatter(dtype):
             expected[block_tets[1, c, j]] += buf[(ROW_F + 3 * c + np.arange(3)) * BLOCK + j]
     np.testing.assert_array_equal(forces[:, :3], expected)
     assert not forces[:, 3].any()
+
+
+def array_ending_at_a_guard_page(values):
+    """A copy of the 1D array ``values`` whose last byte is the last of a page followed by a page
+    that may not be read (Linux ``mprotect``): a read past its end faults."""
+    page = mmap.PAGESIZE
+    pages = mmap.mmap(-1, 2 * page, prot=mmap.PROT_READ | mmap.PROT_WRITE)
+    start = ctypes.addressof(ctypes.c_char.from_buffer(pages))
+    libc = ctypes.CDLL(None, use_errno=True)
+    libc.mprotect.argtypes = (ctypes.c_void_p, ctypes.c_size_t, ctypes.c_int)
+    if libc.mprotect(start + page, page, 0) != 0:            # PROT_NONE
+        pytest.skip(f"mprotect failed: errno {ctypes.get_errno()}")
+    out = np.frombuffer(pages, dtype=values.dtype, count=values.size, offset=page - values.nbytes)
+    out[...] = values
+    return out
+
+
+def gather_at_a_guard_page(dtype):
+    """Gather a block that uses x's last row, that row ending where the readable memory ends."""
+    rng = np.random.default_rng(4)
+    n = 40
+    x = array_ending_at_a_guard_page(rng.standard_normal(3 * n).astype(dtype)).reshape(n, 3)
+    block_tets = rng.integers(0, n, size=(1, 4, BLOCK)).astype(np.uint32)
+    block_tets[0, 3, BLOCK - 1] = n - 1
+    buf = np.zeros(ROWS * BLOCK, dtype=dtype)
+    gather_corners(x, block_tets, 0, buf)
+    for c in range(4):
+        gathered = buf[(ROW_X + 3 * c) * BLOCK:(ROW_X + 3 * c + 3) * BLOCK].reshape(3, BLOCK)
+        np.testing.assert_array_equal(gathered, x[block_tets[0, c]].T)
+
+
+@pytest.mark.skipif(platform.system() != "Linux", reason="the guard page uses Linux's mprotect")
+@pytest.mark.parametrize("dtype", ["float64", "float32"])
+def test_block_gather_never_reads_past_x(dtype):
+    """The block that uses x's last row must not load the row's fourth value: with x ending at a
+    page that may not be read, that load would fault.  Run in a child process, so that a fault
+    fails this test rather than ending the test run."""
+    done = subprocess.run([sys.executable, __file__, "gather_at_a_guard_page", dtype], capture_output=True, text=True)
+    assert done.returncode == 0, f"exit status {done.returncode}: {done.stderr[-2000:]}"
 
 
 def test_wrong_widths_are_refused():
@@ -251,3 +305,7 @@ def test_flush_subnormals_zeroes_subnormal_results_until_restored(dtype):
         assert flushed.tolist() == [0.0, 3.0, 0.0]
     else:
         np.testing.assert_array_equal(flushed, plain)
+
+
+if __name__ == "__main__":          # test_block_gather_never_reads_past_x's child process
+    globals()[sys.argv[1]](np.dtype(sys.argv[2]))

@@ -183,7 +183,7 @@ def block_range_forces(x, rest, blocks, first, stop, model, lam, mu, scatter, ve
     buf = cache_aligned_scratch(ROWS * BLOCK, block_rest)
     for b in range(first, stop):
         prefetch_vertex_rows(x, vertex_forces, blocks[8], blocks[9], b, prefetch)
-        block_forces(x, block_tets, block_rest, b, model, lam, mu, buf, rest, prefetch)
+        block_forces(x, block_tets, block_rest, b, model, lam, mu, buf, rest, prefetch, blocks[10][b])
         lane_count = min(BLOCK, tet_count - b * BLOCK)
         if scatter:
             scatter_block(block_tets, b, lane_count, buf, vertex_forces)
@@ -202,7 +202,7 @@ def advance(x, rest, v, step_start, step_count, dt,
     from them (and ``held_start`` too).  Every array and scalar is in the precision of ``x``.
     step_start: index of the first step (time ``step_start * dt`` [s]); dt [s].
     blocks: ``(block_tets, block_rest, tet_count, part_offsets, colour_parts, run_offsets, owned_runs,
-    prefetch, first_offsets, first_vertices)`` of a ``kernels.blocked.BlockLayout``; colour_offsets:
+    prefetch, first_offsets, first_vertices, whole_rows)`` of a ``kernels.blocked.BlockLayout``; colour_offsets:
     (colours + 1,) into colour_parts; model id, Lame lam, mu [Pa].
     scatter True: the forces are added into ``vertex_forces`` (node_count, 4: x, y, z and a zero,
     ``kernels.simd.FORCE_COLUMNS``), one colour of parts
@@ -300,7 +300,8 @@ def step_arguments(model, work):
     if flat.size < needed:
         raise ValueError(f"work buffer of {flat.size} floats, the {layout.scatter} scatter needs {needed}")
     blocks = (layout.tets, layout.rest, layout.tet_count, layout.part_offsets, layout.colour_parts,
-              layout.run_offsets, layout.owned_runs, layout.prefetch, layout.first_offsets, layout.first_vertices)
+              layout.run_offsets, layout.owned_runs, layout.prefetch, layout.first_offsets, layout.first_vertices,
+              layout.whole_rows)
     if layout.scatter == "colour":
         vertex_forces = flat[:FORCE_COLUMNS * n].reshape(n, FORCE_COLUMNS)
         corner_forces = np.empty((0, 4, 3), dtype=flat.dtype)
