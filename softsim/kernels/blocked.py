@@ -464,9 +464,9 @@ def gather_corners(x, block_tets, b, buf, whole_rows=False):
     whole_rows: True only if the block does not use x's last row (``BlockLayout.whole_rows``):
     each row is then loaded as four values with a plain load, where the last row's fourth would
     lie past ``x``; else with the fourth masked off.  Beam, 2 threads, one process, against masked
-    loads everywhere: float64 1.01x at 10k tets, 1.03x at 100k, 1.07x at 1M, 1.05x at 2M;
-    float32 1.05x at 10k and 100k, 1.07x at 1M and 2M.  (Finding the block's largest index
-    in the step instead, a pass over its 256 indices, cost more than that.)
+    loads everywhere: float64 1.03x at 10k tets, 1.02x at 100k, 1.05x at 1M, 1.01x at 2M;
+    float32 1.05x at 100k.  (Finding the block's largest index in the step instead, a scalar
+    pass over its 256 indices, made the step 0.78-0.91x as fast.)
     """
     if x.shape[1] != 3:
         raise ValueError("gather_corners: x must have 3 columns")
