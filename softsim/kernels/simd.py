@@ -92,8 +92,10 @@ def gather_corner_rows(typingctx, x, tets, tet_offset, buf, buf_offset, lanes, w
     the dtype of ``x``; offsets: integers (elements).  Compiled by transposing vertex rows where
     the target has AVX-512 (``gather_by_transpose``), else by inserting values.
     whole_rows: a literal bool; True only where no lane's vertex is x's last row (``n - 1``): the
-    transpose then loads each row as four values with a plain load (the fourth, the next row's
-    first, unused), where False masks the fourth off so as not to read past ``x``.
+    transpose then loads each row as four values with a plain load, where False masks the fourth
+    off so as not to read past ``x``.  The fourth is the next row's first value, which another
+    thread may be writing at the time (the vertex update of a part of the same colour): it is
+    never used, only shuffled away, and the three values of the row itself are not written then.
     """
     if not (_is_c_array(x, 2) and isinstance(x.dtype, types.Float) and isinstance(tets, types.Array)
             and tets.layout == "C" and tets.dtype == types.uint32 and _is_c_array(buf, 1) and buf.dtype == x.dtype
@@ -153,7 +155,8 @@ def gather_by_transpose(context):
 
 def _rows_by_inserts(builder, x_data, row_starts, float_type, size, plain_loads):
     """Rows x, y, z (vectors of ``len(row_starts)`` lanes): each value loaded and inserted into its
-    lane (``vmovsd`` / ``vmovhps`` / ``vinsertf128``...)."""
+    lane (``vmovsd`` / ``vmovhps`` / ``vinsertf128``...); ``plain_loads`` changes nothing here
+    (no load reaches past its value)."""
     i64, i32 = ir.IntType(64), ir.IntType(32)
     vector_type = ir.VectorType(float_type, len(row_starts))
     rows = [ir.Constant(vector_type, ir.Undefined)] * 3
@@ -167,7 +170,7 @@ def _rows_by_inserts(builder, x_data, row_starts, float_type, size, plain_loads)
 def _rows_by_transpose(builder, x_data, row_starts, float_type, size, plain_loads):
     """Rows x, y, z (vectors of ``W = len(row_starts)`` lanes, W a multiple of 4): each vertex's
     row loaded as one vector of 4 (with ``plain_loads`` a plain load, else its fourth value masked
-    off: no read past the array; the masked loads made the step 1.01-1.07x slower), the rows
+    off: no read past the array; masked everywhere, they made the step 1.01-1.05x slower), the rows
     of a quarter of the lanes side by side in a vector ``Q_k``, then x and y of half the lanes
     taken from two of them, z likewise, and halves joined: seven two-source shuffles (AVX-512
     ``vpermt2pd`` / ``vpermt2ps``) for 3 W values, where inserting takes one shuffle a value."""
