@@ -380,7 +380,7 @@ def test_the_blocked_element_checks_match_naive_volume_ratios_and_stretches():
     x[tets[:40, 0]] = x[tets[:40, 1:]].mean(axis=1) * 2.0 - x[tets[:40, 0]]    # mirror corner 0: inverted
     m = body.tet_count
     J, stretch = np.full(m, np.nan), np.full(m, np.nan)
-    block_volume_ratios_and_stretches(x, body.blocks.tets, body.blocks.rest, m, J, stretch)
+    block_volume_ratios_and_stretches(x, body.blocks.tets, body.blocks.rest, m, body.blocks.whole_rows, J, stretch)
     Ds = np.stack([x[tets[:, k]] - x[tets[:, 0]] for k in (1, 2, 3)], axis=2)
     F = Ds @ body.Dm_inv
     np.testing.assert_allclose(J, np.linalg.det(F), rtol=1e-12, atol=1e-12)

@@ -167,7 +167,8 @@ class FrameGuard:
         of the step where their rest data is float64, else tet by tet."""
         m = self.model
         if m.blocks.rest.dtype == np.float64:
-            block_volume_ratios_and_stretches(x, m.blocks.tets, m.blocks.rest, m.tet_count, self.J, self.stretch)
+            block_volume_ratios_and_stretches(x, m.blocks.tets, m.blocks.rest, m.tet_count, m.blocks.whole_rows,
+                                              self.J, self.stretch)
         else:
             element_volume_ratios_and_stretches(x, m.tets, m.Dm_inv, self.J, self.stretch)
 

@@ -37,6 +37,10 @@ from ..kernels.simd import FORCE_COLUMNS, flush_subnormals, restore_float_contro
 # two alternating processes each): TBB 26 / 16 at 300 tets, 37 / 18-28 at 600, 46-49 / 29-55 at
 # 1k, 56 / 64-80 at 2.5k, 58 / 90 at 5k, 60 / 86-108 at 10k; passive OpenMP 59.6 / 48.8 at 10k,
 # 46.5 / 53.9 at 20k, 51.3 / 62.9 at 28k.
+# Values of a block's scratch buffer: ``ROWS * BLOCK``, a whole number of cache lines in either
+# precision (37 * 64 values), so that consecutive buffers in one array each start at a line.
+SCRATCH = ROWS * BLOCK
+
 TETS_PER_THREAD = 1_000              # on TBB
 TETS_PER_THREAD_OTHER_LAYERS = 10_000
 
@@ -170,8 +174,9 @@ def update_from_forces(x, rest, v, vertex_forces, i, dt, t_next, inv_mass, gravi
 
 
 @njit
-def block_range_forces(x, rest, blocks, first, stop, model, lam, mu, scatter, vertex_forces, corner_forces):
-    """Forces of blocks ``first`` to ``stop - 1``, in order (in the precision of ``blocks``' rest data).
+def block_range_forces(x, rest, blocks, first, stop, model, lam, mu, scatter, vertex_forces, corner_forces, buf):
+    """Forces of blocks ``first`` to ``stop - 1``, in order (in the precision of ``blocks``' rest data),
+    through the scratch ``buf`` (``ROWS * BLOCK``, starting at a cache line; this thread's alone).
 
     scatter: add them to ``vertex_forces`` (node_count, 4) (no other thread may be writing the
     vertices of these blocks); else store them per (tet, corner) into ``corner_forces`` (tet_count, 4, 3).
@@ -180,7 +185,6 @@ def block_range_forces(x, rest, blocks, first, stop, model, lam, mu, scatter, ve
     block_rest = blocks[1]
     tet_count = blocks[2]
     prefetch = blocks[7]
-    buf = cache_aligned_scratch(ROWS * BLOCK, block_rest)
     for b in range(first, stop):
         prefetch_vertex_rows(x, vertex_forces, blocks[8], blocks[9], b, prefetch)
         block_forces(x, block_tets, block_rest, b, model, lam, mu, buf, rest, prefetch, blocks[10][b])
@@ -233,6 +237,8 @@ def advance(x, rest, v, step_start, step_count, dt,
     block_count = blocks[0].shape[0]
     part_offsets = blocks[3]
     colour_parts = blocks[4]
+    # a scratch buffer per part (colour) or chunk (csr), made once per call, not per part and step
+    scratch = cache_aligned_scratch(max(part_offsets.shape[0] - 1, threads) * SCRATCH, blocks[1])
     if scatter:
         run_offsets = blocks[5]
         owned_runs = blocks[6]
@@ -255,7 +261,8 @@ def advance(x, rest, v, step_start, step_count, dt,
                     if ground is not None:
                         part_face_areas(x, rest, ground_faces, ground[3], part)
                     block_range_forces(x, rest, blocks, part_offsets[part], part_offsets[part + 1],
-                                       model, lam, mu, scatter, vertex_forces, corner_forces)
+                                       model, lam, mu, scatter, vertex_forces, corner_forces,
+                                       scratch[part * SCRATCH:(part + 1) * SCRATCH])
                     restore_float_control(control)
         if step_count > 0:
             chunks = min(threads, node_count)
@@ -273,7 +280,8 @@ def advance(x, rest, v, step_start, step_count, dt,
         for chunk in prange(chunks):
             control = flush_subnormals()
             block_range_forces(x, rest, blocks, chunk * block_count // chunks, (chunk + 1) * block_count // chunks,
-                               model, lam, mu, scatter, vertex_forces, corner_forces)
+                               model, lam, mu, scatter, vertex_forces, corner_forces,
+                               scratch[chunk * SCRATCH:(chunk + 1) * SCRATCH])
             restore_float_control(control)
         if ground is not None:
             for part in range(part_offsets.shape[0] - 1):     # boundary faces only: one thread
