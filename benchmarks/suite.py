@@ -128,29 +128,35 @@ def thread_scaling(sizes, seconds, repeats, threads):
     return rows
 
 
-PREFETCH_VARIANTS = ("none", "rest data", "rest data + vertex rows")
+PREFETCH_VARIANTS = ("none", "rest data", "rest data + vertex rows", "rest data computed + vertex rows")
 
 
 def prefetch(sizes, seconds, repeats, threads):
-    """What the step's software prefetches buy: the same mesh stepped with none, with the rest data
-    of the block ahead only, and with the rows of its first-used vertices too, interleaved in one
-    process.  The variants differ only in the layout's ``prefetch`` and first-use lists (the step
-    compiles once with a distance, once without).  Comparing separate processes instead overstated
-    the gains here: the same code ran from 75 to 111 M tet-steps/s at 1M from process to process."""
+    """What the step's software prefetches buy, and computing the rest data instead of reading
+    them: the same mesh stepped with no prefetch, with the rest data of the block ahead only, and
+    with the rows of its first-used vertices too, all three reading the stored rest data; then
+    computing each block's rest data from the rest positions (``BlockLayout.rest_from_points``),
+    with the vertex rows prefetched; interleaved in one process.  The variants differ only in the
+    layout's ``prefetch``, first-use lists and ``rest_from_points``.  Comparing separate processes
+    instead overstated the gains here: the same code ran from 75 to 111 M tet-steps/s at 1M from
+    process to process."""
     from softsim.kernels.blocked import PREFETCH_BLOCKS_AHEAD, prefetching
 
     rows = []
     for target in sizes:
         prepared = prepared_beam(target)
         layout, n = prepared.model.blocks, prepared.model.node_count
-        variants = dict(zip(PREFETCH_VARIANTS, (prefetching(layout, n, None),
-                                                prefetching(layout, n, PREFETCH_BLOCKS_AHEAD, vertex_rows=False),
-                                                prefetching(layout, n, PREFETCH_BLOCKS_AHEAD))))
+        stored = dataclasses.replace(layout, rest_from_points=False)
+        variants = dict(zip(PREFETCH_VARIANTS, (
+            prefetching(stored, n, None),
+            prefetching(stored, n, PREFETCH_BLOCKS_AHEAD, vertex_rows=False),
+            prefetching(stored, n, PREFETCH_BLOCKS_AHEAD),
+            dataclasses.replace(prefetching(layout, n, PREFETCH_BLOCKS_AHEAD), rest_from_points=True))))
         runners = {name: Softsim(dataclasses.replace(prepared, model=dataclasses.replace(prepared.model, blocks=blocks)))
                    for name, blocks in variants.items()}
         rates = interleaved(runners, seconds, repeats)
         tets = runners["none"].tet_count
-        default = PREFETCH_VARIANTS[0 if layout.prefetch is None else -1]
+        default = PREFETCH_VARIANTS[-1 if layout.rest_from_points else 0 if layout.prefetch is None else -2]
         log(f"  {tets:>9} tets: " + ", ".join(f"{name} {statistics.median(rates[name]):.1f}" for name in variants)
             + f" (default: {default})")
         for name, before in zip(PREFETCH_VARIANTS, (None,) + PREFETCH_VARIANTS):

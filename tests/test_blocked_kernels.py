@@ -15,8 +15,10 @@ import pytest
 
 import naive
 from softsim.integrators.symplectic_euler import advance, force_buffer, step_arguments, work_buffer
-from softsim.kernels.blocked import (BLOCK, PREFETCH_BLOCKS_AHEAD, PREFETCH_FROM_BYTES, build_block_layout,
-                                     cache_aligned_scratch, first_uses, owned_vertex_runs, prefetching)
+from softsim.kernels import blocked
+from softsim.kernels.blocked import (BLOCK, PREFETCH_BLOCKS_AHEAD, PREFETCH_FROM_BYTES, REST_ROWS, ROW_F, ROW_REST, ROWS,
+                                     block_layout, build_block_layout, cache_aligned_scratch, first_uses,
+                                     gather_corners, owned_vertex_runs, prefetching, rest_from_corners_block)
 from softsim.kernels.rest_state import rest_state, vertex_tet_csr
 from softsim.kernels.simd import CACHE_LINE_BYTES
 from softsim.materials.models import MODEL_IDS, model_lame_parameters
@@ -32,13 +34,16 @@ class Body:
 
     precision = "float64"
 
-    def __init__(self, points, tets, scatter):
+    def __init__(self, points, tets, scatter, rest_from_points=False):
         self.X = np.ascontiguousarray(points, dtype=np.float64)
+        self.rest_points = self.X
         self.tets = np.ascontiguousarray(tets, dtype=np.int64)
         self.node_count, self.tet_count = len(self.X), len(self.tets)
         self.Dm_inv, self.V0 = rest_state(self.X, self.tets)
         self.csr_offsets, self.csr_slots = vertex_tet_csr(self.tets, self.node_count)
         self.blocks = build_block_layout(self.tets, self.Dm_inv, self.V0, self.node_count, scatter)
+        if rest_from_points:          # what a mesh above REST_FROM_POINTS_BYTES gets
+            self.blocks = dataclasses.replace(self.blocks, rest_from_points=True)
 
     def forces(self, x, model, lam, mu, inv_mass=None, gravity=(0.0, 0.0, 0.0), external_accel=None):
         """The elastic forces at ``x`` [N] from one step of ``advance`` with ``dt = 1`` and ``v = 0``
@@ -72,6 +77,40 @@ def test_blocked_forces_match_naive_numpy(model, scatter):
     f = body.forces(x, model, lam, mu)
     f_naive = naive.elastic_forces(x, body.X, body.tets, model, lam, mu)
     np.testing.assert_allclose(f, f_naive, rtol=0, atol=1e-11 * np.abs(f_naive).max())
+
+
+@pytest.mark.parametrize("scatter", ["colour", "csr"])
+@pytest.mark.parametrize("model", tuple(MODEL_IDS))
+def test_rest_data_computed_in_the_step_give_the_stored_forces(model, scatter):
+    """A layout with ``rest_from_points`` (float64 meshes above ``REST_FROM_POINTS_BYTES``) computes
+    each block's ``Dm^-1`` and ``V0`` from the corners' rest positions: the forces of the naive
+    formulas, and those of the stored rest data to round-off, padding block included."""
+    points, tets, x = mesh((7, 5, 3))
+    lam, mu = model_lame_parameters(model, E_PA, NU)
+    computed = Body(points, tets, scatter, rest_from_points=True)
+    assert step_arguments(computed, work_buffer(computed))[0][11] is not None
+    f = computed.forces(x, model, lam, mu)
+    f_naive = naive.elastic_forces(x, computed.X, computed.tets, model, lam, mu)
+    np.testing.assert_allclose(f, f_naive, rtol=0, atol=1e-11 * np.abs(f_naive).max())
+    f_stored = Body(points, tets, scatter).forces(x, model, lam, mu)
+    np.testing.assert_allclose(f, f_stored, rtol=0, atol=1e-13 * np.abs(f_stored).max())
+
+
+def test_rest_from_corners_block_is_the_stored_rest_data():
+    """``rest_from_corners_block`` against ``kernels.rest_state`` (LU) on a block of distorted tets:
+    every ``Dm^-1`` entry and volume to round-off, in the layout of ``BlockLayout.rest``."""
+    points, tets, _ = mesh((4, 4, 4))
+    X = points + 0.1 * np.random.default_rng(5).normal(size=points.shape)
+    tets = tets[:BLOCK]
+    Dm_inv, V0 = rest_state(X, tets)
+    assert V0.min() > 0
+    block_tets, block_rest = block_layout(tets, Dm_inv, V0)
+    buf = np.zeros((ROWS + REST_ROWS) * BLOCK)
+    gather_corners(X, block_tets, 0, buf, False, ROW_F)
+    rest_from_corners_block(buf)
+    computed = buf[ROW_REST * BLOCK:].reshape(block_rest[0].shape)
+    scale = np.abs(block_rest[0]).max(axis=(0, 2), keepdims=True)       # per row: Dm^-1 entries, volumes
+    assert (np.abs(computed - block_rest[0]) <= 1e-13 * scale).all()
 
 
 def test_gravity_alone_gives_the_bits_of_a_per_vertex_acceleration_array():
@@ -194,6 +233,11 @@ def test_prefetching_changes_no_bit(model, scatter):
         body.blocks = with_prefetch(layout, ahead, body.node_count)
         assert body.blocks.first_vertices.size > 0
         assert body.forces(x, model, lam, mu).tobytes() == plain.tobytes()
+    # rest data computed in the step: the prefetch (of the rest positions' rows too) changes no bit either
+    body.blocks = dataclasses.replace(layout, rest_from_points=True)
+    computed = body.forces(x, model, lam, mu)
+    body.blocks = dataclasses.replace(with_prefetch(layout, PREFETCH_BLOCKS_AHEAD, body.node_count), rest_from_points=True)
+    assert body.forces(x, model, lam, mu).tobytes() == computed.tobytes()
 
 
 def test_first_uses_list_each_vertex_of_a_part_once_at_the_block_that_uses_it_first():
@@ -221,6 +265,19 @@ def test_only_meshes_whose_rest_data_outgrow_the_cache_prefetch():
     assert large.first_vertices.tolist() == [0] and large.first_offsets[1] == 1     # one vertex, first used by block 0
     assert build_block_layout(tets, Dm_inv, V0, 1, dtype=np.float32).prefetch is None
     assert build_block_layout(tets[:tets_over // 2], Dm_inv[:tets_over // 2], V0[:tets_over // 2], 1).prefetch is None
+
+
+def test_only_float64_meshes_whose_rest_data_outgrow_the_threshold_compute_them_in_the_step(monkeypatch):
+    """``BlockLayout.rest_from_points`` above ``REST_FROM_POINTS_BYTES`` of rest data, in float64
+    only (float32 steps hold displacements, and its rest data are half the bytes)."""
+    points, tets, _ = mesh((4, 3, 3))
+    Dm_inv, V0 = rest_state(points, tets)
+    rest_bytes = block_layout(tets, Dm_inv, V0)[1].nbytes
+    for threshold, expected in ((rest_bytes - 1, True), (rest_bytes, False)):
+        monkeypatch.setattr(blocked, "REST_FROM_POINTS_BYTES", threshold)
+        assert build_block_layout(tets, Dm_inv, V0, len(points)).rest_from_points is expected
+    monkeypatch.setattr(blocked, "REST_FROM_POINTS_BYTES", 0)
+    assert not build_block_layout(tets, Dm_inv, V0, len(points), dtype=np.float32).rest_from_points
 
 
 def test_prefetching_sets_the_distance_and_lists_the_first_uses_only_with_vertex_rows():

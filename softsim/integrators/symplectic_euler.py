@@ -24,7 +24,7 @@ gathered per vertex: ``kernels.blocked`` ``scatter='csr'``).
 import numpy as np
 from numba import prange
 
-from ..kernels.blocked import (BLOCK, ROWS, block_forces, cache_aligned_empty, cache_aligned_scratch,
+from ..kernels.blocked import (BLOCK, REST_ROWS, ROWS, block_forces, cache_aligned_empty, cache_aligned_scratch,
                                prefetch_vertex_rows, scatter_block, store_block_corners)
 from ..kernels.forces import gather_vertex_force
 from ..kernels.jit import njit, njit_inline, njit_parallel
@@ -37,9 +37,10 @@ from ..kernels.simd import FORCE_COLUMNS, flush_subnormals, restore_float_contro
 # two alternating processes each): TBB 26 / 16 at 300 tets, 37 / 18-28 at 600, 46-49 / 29-55 at
 # 1k, 56 / 64-80 at 2.5k, 58 / 90 at 5k, 60 / 86-108 at 10k; passive OpenMP 59.6 / 48.8 at 10k,
 # 46.5 / 53.9 at 20k, 51.3 / 62.9 at 28k.
-# Values of a block's scratch buffer: ``ROWS * BLOCK``, a whole number of cache lines in either
-# precision (37 * 64 values), so that consecutive buffers in one array each start at a line.
-SCRATCH = ROWS * BLOCK
+# Values of a block's scratch buffer: ``ROWS * BLOCK``, then a block's rest data where the step
+# computes them (``BlockLayout.rest_from_points``): a whole number of cache lines in either
+# precision ((37 + 10) * 64 values), so that consecutive buffers in one array each start at a line.
+SCRATCH = (ROWS + REST_ROWS) * BLOCK
 
 TETS_PER_THREAD = 1_000              # on TBB
 TETS_PER_THREAD_OTHER_LAYERS = 10_000
@@ -176,7 +177,7 @@ def update_from_forces(x, rest, v, vertex_forces, i, dt, t_next, inv_mass, gravi
 @njit
 def block_range_forces(x, rest, blocks, first, stop, model, lam, mu, scatter, vertex_forces, corner_forces, buf):
     """Forces of blocks ``first`` to ``stop - 1``, in order (in the precision of ``blocks``' rest data),
-    through the scratch ``buf`` (``ROWS * BLOCK``, starting at a cache line; this thread's alone).
+    through the scratch ``buf`` (``SCRATCH``, starting at a cache line; this thread's alone).
 
     scatter: add them to ``vertex_forces`` (node_count, 4) (no other thread may be writing the
     vertices of these blocks); else store them per (tet, corner) into ``corner_forces`` (tet_count, 4, 3).
@@ -185,9 +186,10 @@ def block_range_forces(x, rest, blocks, first, stop, model, lam, mu, scatter, ve
     block_rest = blocks[1]
     tet_count = blocks[2]
     prefetch = blocks[7]
+    rest_points = blocks[11]
     for b in range(first, stop):
-        prefetch_vertex_rows(x, vertex_forces, blocks[8], blocks[9], b, prefetch)
-        block_forces(x, block_tets, block_rest, b, model, lam, mu, buf, rest, prefetch, blocks[10][b])
+        prefetch_vertex_rows(x, vertex_forces, blocks[8], blocks[9], b, prefetch, rest_points)
+        block_forces(x, block_tets, block_rest, b, model, lam, mu, buf, rest, prefetch, blocks[10][b], rest_points)
         lane_count = min(BLOCK, tet_count - b * BLOCK)
         if scatter:
             scatter_block(block_tets, b, lane_count, buf, vertex_forces)
@@ -206,7 +208,8 @@ def advance(x, rest, v, step_start, step_count, dt,
     from them (and ``held_start`` too).  Every array and scalar is in the precision of ``x``.
     step_start: index of the first step (time ``step_start * dt`` [s]); dt [s].
     blocks: ``(block_tets, block_rest, tet_count, part_offsets, colour_parts, run_offsets, owned_runs,
-    prefetch, first_offsets, first_vertices, whole_rows)`` of a ``kernels.blocked.BlockLayout``; colour_offsets:
+    prefetch, first_offsets, first_vertices, whole_rows, rest_points)`` of a ``kernels.blocked.BlockLayout``
+    (rest_points: None, or the rest positions where ``rest_from_points``); colour_offsets:
     (colours + 1,) into colour_parts; model id, Lame lam, mu [Pa].
     scatter True: the forces are added into ``vertex_forces`` (node_count, 4: x, y, z and a zero,
     ``kernels.simd.FORCE_COLUMNS``), one colour of parts
@@ -309,7 +312,7 @@ def step_arguments(model, work):
         raise ValueError(f"work buffer of {flat.size} floats, the {layout.scatter} scatter needs {needed}")
     blocks = (layout.tets, layout.rest, layout.tet_count, layout.part_offsets, layout.colour_parts,
               layout.run_offsets, layout.owned_runs, layout.prefetch, layout.first_offsets, layout.first_vertices,
-              layout.whole_rows)
+              layout.whole_rows, np.ascontiguousarray(model.rest_points) if layout.rest_from_points else None)
     if layout.scatter == "colour":
         vertex_forces = flat[:FORCE_COLUMNS * n].reshape(n, FORCE_COLUMNS)
         corner_forces = np.empty((0, 4, 3), dtype=flat.dtype)

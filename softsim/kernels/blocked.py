@@ -12,6 +12,8 @@ block is one row of ``BLOCK`` lanes (structure of arrays), read from the block's
     buf rows 12..23  corner forces f_c,k        [N]       row 12 + 3 c + k
                      (the guard's element checks: J and the stretch in rows 12 and 13)
     buf rows 24..36  corotated only: the lanes' next stage, Newton's state (see ``corotated_block``)
+    buf rows 37..46  where the step computes the rest data (``rest_from_corners_block``): the
+                     block's rest rows in the layout of ``block_rest[b]`` (groups, 10, lanes)
 
 Row offsets are compile-time constants and every access of the lane loop is ``rest[g, row, l]`` or
 ``buf[row * BLOCK + j]``: LLVM emits packed SIMD code (AVX2 / AVX-512), its one runtime alias check
@@ -74,7 +76,7 @@ from ..materials.models import (
 )
 from ..mesh.reorder import SLABS
 from .jit import njit, njit_inline
-from .mat3 import mat3_ddot_inline, mat3_det_inline, mat3_mul_inline, mat3_mul_transpose_b_inline, mat3_scale_inline
+from .mat3 import mat3_cofactor_inline, mat3_ddot_inline, mat3_det_inline, mat3_mul_inline, mat3_mul_transpose_b_inline, mat3_scale_inline
 from .polar3 import jacobi_rotation_and_stretch, newton_polar_finish, newton_polar_start
 from .simd import (CACHE_LINE_BYTES, FORCE_COLUMNS, add_corner_force, gather_corner_rows, prefer_wide_vectors,
                    prefetch_line)
@@ -92,6 +94,7 @@ ROW_STAGE = 24             # corotated: what a lane still needs: STAGE_DONE, STA
 ROW_LIST = 25              # corotated: the lanes a scalar pass redoes, listed first
 ROW_NEWTON = 26            # corotated: rows 26..34 ``Z`` of Newton's iteration (X_4 = inv Z), 35 inv, 36 det F
 ROWS = 37                  # rows of the scratch buffer; ``ROWS * BLOCK`` floats
+ROW_REST = ROWS            # computed rest data (rest_from_points): REST_ROWS rows more
 STAGE_DONE = 0.0           # corotated, row ROW_STAGE: forces stored
 STAGE_NEWTON = 1.0         # Newton's last two steps to take (det F > 0, the first four did not settle)
 STAGE_JACOBI = 2.0         # the Jacobi SVD to take (det F <= 0, or Newton did not converge)
@@ -141,6 +144,17 @@ def _group_lanes_constant(rest):
 PREFETCH_BLOCKS_AHEAD = 2
 PREFETCH_FROM_BYTES = 8 * 2**20
 
+# float64 meshes whose rest data exceed ``REST_FROM_POINTS_BYTES`` do not stream them in the step:
+# each block computes its ``Dm^-1`` and ``V0`` from the rest positions of its corners, gathered
+# like the current ones (``rest_from_corners_block``; ``BlockLayout.rest_from_points``).  80 bytes
+# a tet then become the corners' rest rows, which neighbouring blocks share and cache holds, for
+# a second gather and 4.5 ns a tet more work (one thread, a block in cache: 11.5 against 7.0 ns).
+# Beam, 2 threads, one process, medians of 9 interleaved rounds, against the stored rest data
+# (both prefetching): 0.83x at 310k, 0.97x at 1M (77 MiB of rest data), 1.13x
+# at 2M (150 MiB).  (Every block reading the same rest data, always in cache, bounds what can be
+# gained: 1.50x at 1M, 1.45x at 2M.)
+REST_FROM_POINTS_BYTES = 128 * 2**20
+
 # corotated: the Jacobi SVD of the lanes where Newton's polar iteration did not converge runs as
 # a packed SIMD loop over the whole block (costing all 64 lanes) above this many such lanes, and
 # lane by lane in scalar code up to it.  Measured on one block in L1 cache (AVX-512, Zen 4): the
@@ -187,7 +201,9 @@ class BlockLayout:
     first of its part to use, ``first_vertices[first_offsets[b]:first_offsets[b + 1]]``, whose
     rows the step fetches as far ahead (``first_uses``; empty when ``prefetch`` is None);
     whole_rows (block_count,) bool: block b does not use the last vertex, so its gather may load
-    every corner's row as four values (``gather_corners``).
+    every corner's row as four values (``gather_corners``);
+    rest_from_points: the step computes each block's rest data from the rest positions instead of
+    reading ``rest`` (float64 only, above ``REST_FROM_POINTS_BYTES``; ``rest_from_corners_block``).
     """
 
     tets: np.ndarray
@@ -203,6 +219,7 @@ class BlockLayout:
     first_offsets: np.ndarray
     first_vertices: np.ndarray
     whole_rows: np.ndarray
+    rest_from_points: bool = False
 
     @property
     def colour_count(self):
@@ -227,7 +244,9 @@ def build_block_layout(tets, Dm_inv, rest_volume, node_count, scatter=None, slab
                          first_vertices=first_vertices,
                          whole_rows=block_tets.max(axis=(1, 2), initial=0) < node_count - 1)
     if block_rest.nbytes > PREFETCH_FROM_BYTES:
-        return prefetching(layout, node_count, PREFETCH_BLOCKS_AHEAD)
+        layout = prefetching(layout, node_count, PREFETCH_BLOCKS_AHEAD)
+    if np.dtype(dtype) == np.float64 and block_rest.nbytes > REST_FROM_POINTS_BYTES:
+        layout = dataclasses.replace(layout, rest_from_points=True)
     return layout
 
 
@@ -457,9 +476,11 @@ _neohookean_first_piola_displacement = njit_inline(neohookean_first_piola_displa
 
 
 @njit
-def gather_corners(x, block_tets, b, buf, whole_rows=False):
-    """Gather block ``b``'s corner positions (or displacements) ``x`` (n, 3) into the scratch ``buf``
-    (``simd.gather_corner_rows``: a vector store per row of lanes, not a scalar store per value).
+def gather_corners(x, block_tets, b, buf, whole_rows=False, first_row=ROW_X):
+    """Gather block ``b``'s corner positions (or displacements) ``x`` (n, 3) into rows ``first_row``
+    to ``first_row + 11`` of the scratch ``buf`` (``simd.gather_corner_rows``: a vector store per
+    row of lanes, not a scalar store per value); the rest positions go to rows ``ROW_F..``
+    (``rest_from_corners_block``).
 
     whole_rows: True only if the block does not use x's last row (``BlockLayout.whole_rows``):
     each row is then loaded as four values with a plain load, where the last row's fourth would
@@ -472,10 +493,10 @@ def gather_corners(x, block_tets, b, buf, whole_rows=False):
         raise ValueError("gather_corners: x must have 3 columns")
     if whole_rows:
         for c in range(4):
-            gather_corner_rows(x, block_tets, (b * 4 + c) * BLOCK, buf, (ROW_X + 3 * c) * BLOCK, BLOCK, True)
+            gather_corner_rows(x, block_tets, (b * 4 + c) * BLOCK, buf, (first_row + 3 * c) * BLOCK, BLOCK, True)
     else:
         for c in range(4):
-            gather_corner_rows(x, block_tets, (b * 4 + c) * BLOCK, buf, (ROW_X + 3 * c) * BLOCK, BLOCK, False)
+            gather_corner_rows(x, block_tets, (b * 4 + c) * BLOCK, buf, (first_row + 3 * c) * BLOCK, BLOCK, False)
 
 
 @njit_inline
@@ -496,10 +517,11 @@ def block_ahead(b, prefetch, block_count):
 
 
 @njit
-def prefetch_vertex_rows(x, vertex_forces, first_offsets, first_vertices, b, prefetch):
-    """Fetch the rows of ``x`` (n, 3) and of ``vertex_forces`` (n, ``FORCE_COLUMNS``, or empty: not
-    those) of the vertices that block ``b + prefetch`` (the last block at most) uses first in its
-    part (``first_uses``) into L2; nothing where ``prefetch`` is None (pruned by Numba)."""
+def prefetch_vertex_rows(x, vertex_forces, first_offsets, first_vertices, b, prefetch, rest_points=None):
+    """Fetch the rows of ``x`` (n, 3), of ``vertex_forces`` (n, ``FORCE_COLUMNS``, or empty: not
+    those) and of ``rest_points`` (n, 3, or None: not those) of the vertices that block
+    ``b + prefetch`` (the last block at most) uses first in its part (``first_uses``) into L2;
+    nothing where ``prefetch`` is None (pruned by Numba)."""
     if prefetch is None:
         return
     ahead = block_ahead(b, prefetch, first_offsets.shape[0] - 1)
@@ -508,6 +530,8 @@ def prefetch_vertex_rows(x, vertex_forces, first_offsets, first_vertices, b, pre
         prefetch_line(x, i * 3)
         if vertex_forces.shape[0] > 0:
             prefetch_line(vertex_forces, i * FORCE_COLUMNS)
+        if rest_points is not None:
+            prefetch_line(rest_points, i * 3)
 
 
 @njit_inline
@@ -520,20 +544,26 @@ def prefetch_rows(rows):
 
 
 @njit_inline
+def lane_edges(buf, j, first_row):
+    """The edge matrix of lane ``j`` (9-tuple, row-major), columns ``x_c - x_0`` (c = 1, 2, 3) of the
+    corner rows ``first_row..first_row + 11`` of ``buf`` (``gather_corners``)."""
+    return (buf[(first_row + 3) * BLOCK + j] - buf[first_row * BLOCK + j],
+            buf[(first_row + 6) * BLOCK + j] - buf[first_row * BLOCK + j],
+            buf[(first_row + 9) * BLOCK + j] - buf[first_row * BLOCK + j],
+            buf[(first_row + 4) * BLOCK + j] - buf[(first_row + 1) * BLOCK + j],
+            buf[(first_row + 7) * BLOCK + j] - buf[(first_row + 1) * BLOCK + j],
+            buf[(first_row + 10) * BLOCK + j] - buf[(first_row + 1) * BLOCK + j],
+            buf[(first_row + 5) * BLOCK + j] - buf[(first_row + 2) * BLOCK + j],
+            buf[(first_row + 8) * BLOCK + j] - buf[(first_row + 2) * BLOCK + j],
+            buf[(first_row + 11) * BLOCK + j] - buf[(first_row + 2) * BLOCK + j])
+
+
+@njit_inline
 def lane_deformation_gradient(rest, l, buf, j):
     """``F = Ds Dm^-1`` of lane ``j`` (9-tuple), ``Ds`` the edges ``x_c - x_0`` as columns; when the
     corner rows hold displacements, the same product is ``H = Du Dm^-1 = F - I``.  rest: the rest
     rows of the lane's group (10, lanes), ``l``: the lane in it."""
-    d = (buf[(ROW_X + 3) * BLOCK + j] - buf[ROW_X * BLOCK + j],
-         buf[(ROW_X + 6) * BLOCK + j] - buf[ROW_X * BLOCK + j],
-         buf[(ROW_X + 9) * BLOCK + j] - buf[ROW_X * BLOCK + j],
-         buf[(ROW_X + 4) * BLOCK + j] - buf[(ROW_X + 1) * BLOCK + j],
-         buf[(ROW_X + 7) * BLOCK + j] - buf[(ROW_X + 1) * BLOCK + j],
-         buf[(ROW_X + 10) * BLOCK + j] - buf[(ROW_X + 1) * BLOCK + j],
-         buf[(ROW_X + 5) * BLOCK + j] - buf[(ROW_X + 2) * BLOCK + j],
-         buf[(ROW_X + 8) * BLOCK + j] - buf[(ROW_X + 2) * BLOCK + j],
-         buf[(ROW_X + 11) * BLOCK + j] - buf[(ROW_X + 2) * BLOCK + j])
-    return mat3_mul_inline(d, lane_rest_matrix(rest, l))
+    return mat3_mul_inline(lane_edges(buf, j, ROW_X), lane_rest_matrix(rest, l))
 
 
 @njit_inline
@@ -752,6 +782,48 @@ def linear_displacement_block(rest, buf, lam, mu, upcoming):
 
 
 @njit
+def rest_from_corners_block(buf):
+    """Each lane's rest data from the rest positions of its corners in rows ``ROW_F..ROW_F + 11`` of
+    ``buf`` (``gather_corners(..., first_row=ROW_F)``) into rows ``ROW_REST..`` of ``buf``
+    (``computed_rest``): ``Dm^-1 = cof(Dm)^T / det Dm`` [1/m] and ``V0 = det Dm / 6`` [m^3]
+    (``kernels.rest_state`` computes them by LU: the two agree to round-off).  A padding lane gets
+    its tet's volume, not zero: the scatter leaves padding lanes out anyway.
+
+    The stores go to ``buf`` at compile-time-constant offsets, as a block of ``BlockLayout.rest``
+    (groups of ``lanes``, each group's ten rows in turn).  Stored through a view of those rows
+    (``rest[g][row, l]``, its row stride known only at run time) the loop needed more run-time
+    alias checks than LLVM makes, and compiled to scalar code: 6 ns a tet, one thread."""
+    prefer_wide_vectors()
+    lanes = group_lanes(buf)
+    for g in range(BLOCK // lanes):
+        for l in range(lanes):
+            j = g * lanes + l
+            Dm = lane_edges(buf, j, ROW_F)
+            cof = mat3_cofactor_inline(Dm)
+            det = Dm[0] * cof[0] + Dm[1] * cof[1] + Dm[2] * cof[2]
+            inv_det = 1.0 / det
+            row = ROW_REST * BLOCK + g * REST_ROWS * lanes + l      # row 0 of lane l of group g
+            buf[row + ROW_DM_INV * lanes] = cof[0] * inv_det           # Dm^-1 = cof^T / det, row-major
+            buf[row + (ROW_DM_INV + 1) * lanes] = cof[3] * inv_det
+            buf[row + (ROW_DM_INV + 2) * lanes] = cof[6] * inv_det
+            buf[row + (ROW_DM_INV + 3) * lanes] = cof[1] * inv_det
+            buf[row + (ROW_DM_INV + 4) * lanes] = cof[4] * inv_det
+            buf[row + (ROW_DM_INV + 5) * lanes] = cof[7] * inv_det
+            buf[row + (ROW_DM_INV + 6) * lanes] = cof[2] * inv_det
+            buf[row + (ROW_DM_INV + 7) * lanes] = cof[5] * inv_det
+            buf[row + (ROW_DM_INV + 8) * lanes] = cof[8] * inv_det
+            buf[row + ROW_VOLUME * lanes] = det / 6.0
+
+
+@njit_inline
+def computed_rest(buf):
+    """Rows ``ROW_REST..`` of ``buf`` as a block of rest data (groups, 10, lanes), the shape of
+    ``block_rest[b]`` (``rest_from_corners_block``)."""
+    lanes = group_lanes(buf)
+    return buf[ROW_REST * BLOCK:(ROW_REST + REST_ROWS) * BLOCK].reshape((BLOCK // lanes, REST_ROWS, lanes))
+
+
+@njit
 def volume_ratio_and_stretch_block(rest, buf):
     """``J = det F`` and the RMS stretch ``|F| / sqrt(3)`` of each lane, from the corner positions
     in ``buf``, into rows ``ROW_J`` and ``ROW_STRETCH`` of ``buf`` (the guard's element checks)."""
@@ -767,14 +839,24 @@ def volume_ratio_and_stretch_block(rest, buf):
 
 
 @njit
-def block_forces(x, block_tets, block_rest, b, model, lam, mu, buf, rest, prefetch, whole_rows):
-    """Corner forces [N] of block ``b`` into rows ``ROW_F..`` of ``buf`` (``ROWS * BLOCK``,).
+def block_forces(x, block_tets, block_rest, b, model, lam, mu, buf, rest, prefetch, whole_rows, rest_points=None):
+    """Corner forces [N] of block ``b`` into rows ``ROW_F..`` of ``buf`` (``ROWS * BLOCK``,; with
+    ``rest_points``, ``(ROWS + REST_ROWS) * BLOCK``).
 
     rest: None when ``x`` holds positions; the rest positions when ``x`` holds displacements from
     them (the laws then take ``H = F - I``; ``materials.models.DISPLACEMENT_FORM_MODELS`` only).
     prefetch: None, or how many blocks ahead to fetch rest data into L2 (``BlockLayout.prefetch``).
     whole_rows: whether the block's corners leave out x's last row (``gather_corners``).
+    rest_points: None, or (with ``x`` holding positions) the rest positions (n, 3) [m], from which
+    the block's rest data are computed into ``buf`` (``rest_from_corners_block``) instead of read
+    from ``block_rest`` (``BlockLayout.rest_from_points``).
     """
+    if rest_points is not None:
+        gather_corners(rest_points, block_tets, b, buf, whole_rows, ROW_F)
+        rest_from_corners_block(buf)
+        gather_corners(x, block_tets, b, buf, whole_rows)
+        model_forces(computed_rest(buf), buf, model, lam, mu, rest, None)
+        return
     gather_corners(x, block_tets, b, buf, whole_rows)
     if prefetch is None:
         model_forces(block_rest[b], buf, model, lam, mu, rest, None)
