@@ -149,3 +149,21 @@ def test_refuse_refuses_before_any_output_and_substep_agrees_with_auto(scene, tm
         assert sag > 1e-4                               # it moved
         # both are O(dt) approximations of the same motion with nearby steps
         np.testing.assert_allclose(b["frames/points"][-1], a["frames/points"][-1], atol=0.02 * sag)
+
+
+def test_moved_more_than_agrees_with_the_largest_change_and_counts_nan_as_moved():
+    """The guard's test of whether the elements moved enough since it last computed the stable step
+    to compute it again, in one compiled pass, against the largest change in NumPy."""
+    from softsim.kernels.element_checks import moved_more_than
+    rng = np.random.default_rng(3)
+    J_seen, stretch_seen = rng.uniform(0.5, 1.5, 1000), rng.uniform(0.5, 1.5, 1000)
+    limit = 0.05
+    for scale_J, scale_s in ((1e-3, 0.2), (0.3, 1e-3), (1e-3, 1e-3), (0.0, 0.0)):
+        J = J_seen + scale_J * rng.normal(size=1000)
+        stretch = stretch_seen * (1.0 + scale_s * rng.normal(size=1000))
+        change = max(np.abs(J - J_seen).max(), np.abs(stretch / stretch_seen - 1.0).max())
+        assert moved_more_than(J, J_seen, stretch, stretch_seen, limit) == (change > limit)
+    assert not moved_more_than(J, J_seen, stretch, stretch_seen, limit)
+    stretch[7] = np.nan
+    assert moved_more_than(J, J_seen, stretch, stretch_seen, limit)
+    assert not moved_more_than(J[:0], J_seen[:0], stretch[:0], stretch_seen[:0], limit)

@@ -25,7 +25,8 @@ import math
 import numpy as np
 
 from ..errors import SimulationError
-from ..kernels.element_checks import block_volume_ratios_and_stretches, element_volume_ratios_and_stretches
+from ..kernels.element_checks import (block_volume_ratios_and_stretches, element_volume_ratios_and_stretches,
+                                      moved_more_than)
 from ..kernels.energy import elastic_energy, gravity_energy, kinetic_energy
 from ..kernels.forces import elastic_forces
 from ..materials.models import INVERSION_SAFE, MODEL_IDS
@@ -176,9 +177,7 @@ class FrameGuard:
         """Sub-steps per planned step at the state whose J and stretch ``self`` holds."""
         if self.policy == "allow":
             return 1
-        change = max(np.abs(self.J - self.J_seen).max(initial=0.0),
-                     np.abs(self.stretch / self.stretch_seen - 1.0).max(initial=0.0))
-        if change <= RECHECK_CHANGE:
+        if not moved_more_than(self.J, self.J_seen, self.stretch, self.stretch_seen, RECHECK_CHANGE):
             return self.substeps
         self.J_seen[:] = self.J
         self.stretch_seen[:] = self.stretch
