@@ -76,7 +76,8 @@ from ..materials.models import (
 )
 from ..mesh.reorder import SLABS
 from .jit import njit, njit_inline
-from .mat3 import mat3_cofactor_inline, mat3_ddot_inline, mat3_det_inline, mat3_mul_inline, mat3_mul_transpose_b_inline, mat3_scale_inline
+from .mat3 import (mat3_cofactor_inline, mat3_ddot_inline, mat3_det_inline, mat3_mul_inline,
+                   mat3_mul_transpose_b_inline, mat3_scale_inline)
 from .polar3 import jacobi_rotation_and_stretch, newton_polar_finish, newton_polar_start
 from .simd import (CACHE_LINE_BYTES, FORCE_COLUMNS, add_corner_force, gather_corner_rows, prefer_wide_vectors,
                    prefetch_line)
@@ -840,8 +841,8 @@ def volume_ratio_and_stretch_block(rest, buf):
 
 @njit
 def block_forces(x, block_tets, block_rest, b, model, lam, mu, buf, rest, prefetch, whole_rows, rest_points=None):
-    """Corner forces [N] of block ``b`` into rows ``ROW_F..`` of ``buf`` (``ROWS * BLOCK``,; with
-    ``rest_points``, ``(ROWS + REST_ROWS) * BLOCK``).
+    """Corner forces [N] of block ``b`` into rows ``ROW_F..`` of ``buf`` (``ROWS * BLOCK`` values;
+    ``(ROWS + REST_ROWS) * BLOCK`` with ``rest_points``).
 
     rest: None when ``x`` holds positions; the rest positions when ``x`` holds displacements from
     them (the laws then take ``H = F - I``; ``materials.models.DISPLACEMENT_FORM_MODELS`` only).
