@@ -16,7 +16,7 @@ import pytest
 import naive
 from softsim.integrators.symplectic_euler import advance, force_buffer, step_arguments, work_buffer
 from softsim.kernels import blocked
-from softsim.kernels.blocked import (BLOCK, PREFETCH_BLOCKS_AHEAD, PREFETCH_FROM_BYTES, REST_ROWS, ROW_F, ROW_REST, ROWS,
+from softsim.kernels.blocked import (BLOCK, PREFETCH_BLOCKS_AHEAD, PREFETCH_FROM_BYTES, ROW_F, ROW_REST, SCRATCH_ROWS,
                                      block_layout, build_block_layout, cache_aligned_scratch, first_uses,
                                      gather_corners, owned_vertex_runs, prefetching, rest_from_corners_block)
 from softsim.kernels.rest_state import rest_state, vertex_tet_csr
@@ -106,7 +106,7 @@ def test_rest_from_corners_block_is_the_stored_rest_data():
     Dm_inv, V0 = rest_state(X, tets)
     assert V0.min() > 0
     block_tets, block_rest = block_layout(tets, Dm_inv, V0)
-    buf = np.zeros((ROWS + REST_ROWS) * BLOCK)
+    buf = np.zeros(SCRATCH_ROWS * BLOCK)
     gather_corners(X, block_tets, 0, buf, False, ROW_F)
     rest_from_corners_block(buf)
     computed = buf[ROW_REST * BLOCK:].reshape(block_rest[0].shape)

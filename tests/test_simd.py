@@ -96,7 +96,9 @@ def test_block_gather_and_scatter(dtype, uses_last_row):
     if uses_last_row:
         block_tets[1, 2, 17] = n - 1
     buf = rng.standard_normal(ROWS * BLOCK).astype(dtype)
-    gather_corners(x, block_tets, 1, buf)
+    whole_rows = bool(block_tets[1].max() < n - 1)          # as ``BlockLayout.whole_rows`` has it
+    assert whole_rows is not uses_last_row
+    gather_corners(x, block_tets, 1, buf, whole_rows)
     for c in range(4):
         gathered = buf[(ROW_X + 3 * c) * BLOCK:(ROW_X + 3 * c + 3) * BLOCK].reshape(3, BLOCK)
         np.testing.assert_array_equal(gathered, x[block_tets[1, c]].T)

@@ -24,7 +24,7 @@ gathered per vertex: ``kernels.blocked`` ``scatter='csr'``).
 import numpy as np
 from numba import prange
 
-from ..kernels.blocked import (BLOCK, REST_ROWS, ROWS, block_forces, cache_aligned_empty, cache_aligned_scratch,
+from ..kernels.blocked import (BLOCK, SCRATCH_ROWS, block_forces, cache_aligned_empty, cache_aligned_scratch,
                                prefetch_vertex_rows, scatter_block, store_block_corners)
 from ..kernels.forces import gather_vertex_force
 from ..kernels.jit import njit, njit_inline, njit_parallel
@@ -37,10 +37,10 @@ from ..kernels.simd import FORCE_COLUMNS, flush_subnormals, restore_float_contro
 # two alternating processes each): TBB 26 / 16 at 300 tets, 37 / 18-28 at 600, 46-49 / 29-55 at
 # 1k, 56 / 64-80 at 2.5k, 58 / 90 at 5k, 60 / 86-108 at 10k; passive OpenMP 59.6 / 48.8 at 10k,
 # 46.5 / 53.9 at 20k, 51.3 / 62.9 at 28k.
-# Values of a block's scratch buffer: ``ROWS * BLOCK``, then a block's rest data where the step
-# computes them (``BlockLayout.rest_from_points``): a whole number of cache lines in either
-# precision ((37 + 10) * 64 values), so that consecutive buffers in one array each start at a line.
-SCRATCH = (ROWS + REST_ROWS) * BLOCK
+# Values of a block's scratch buffer (``kernels.blocked.SCRATCH_ROWS``: the rows of a block, then
+# its rest data where the step computes them): a whole number of cache lines in either precision
+# (47 * 64 values), so that consecutive buffers in one array each start at a line.
+SCRATCH = SCRATCH_ROWS * BLOCK
 
 TETS_PER_THREAD = 1_000              # on TBB
 TETS_PER_THREAD_OTHER_LAYERS = 10_000

@@ -96,6 +96,7 @@ ROW_LIST = 25              # corotated: the lanes a scalar pass redoes, listed f
 ROW_NEWTON = 26            # corotated: rows 26..34 ``Z`` of Newton's iteration (X_4 = inv Z), 35 inv, 36 det F
 ROWS = 37                  # rows of the scratch buffer; ``ROWS * BLOCK`` floats
 ROW_REST = ROWS            # computed rest data (rest_from_points): REST_ROWS rows more
+SCRATCH_ROWS = ROW_REST + REST_ROWS   # rows of the step's scratch buffer, computed rest data included
 STAGE_DONE = 0.0           # corotated, row ROW_STAGE: forces stored
 STAGE_NEWTON = 1.0         # Newton's last two steps to take (det F > 0, the first four did not settle)
 STAGE_JACOBI = 2.0         # the Jacobi SVD to take (det F <= 0, or Newton did not converge)
@@ -842,7 +843,7 @@ def volume_ratio_and_stretch_block(rest, buf):
 @njit
 def block_forces(x, block_tets, block_rest, b, model, lam, mu, buf, rest, prefetch, whole_rows, rest_points=None):
     """Corner forces [N] of block ``b`` into rows ``ROW_F..`` of ``buf`` (``ROWS * BLOCK`` values;
-    ``(ROWS + REST_ROWS) * BLOCK`` with ``rest_points``).
+    ``SCRATCH_ROWS * BLOCK`` with ``rest_points``).
 
     rest: None when ``x`` holds positions; the rest positions when ``x`` holds displacements from
     them (the laws then take ``H = F - I``; ``materials.models.DISPLACEMENT_FORM_MODELS`` only).
