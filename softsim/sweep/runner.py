@@ -13,6 +13,7 @@ without it, and ``import_distributed`` names the extra to install.
 from __future__ import annotations
 
 import contextlib
+import functools
 import logging
 import math
 import os
@@ -35,6 +36,8 @@ log = logging.getLogger("softsim")
 SUMMARY_NAME = "summary"
 # Status in the summary of a run the sweep never finished (Ctrl-C): as a file's would be.
 NOT_FINISHED = "interrupted"
+# Seconds a mesh's scatter to the workers may take before the runs carry the mesh themselves.
+SCATTER_TIMEOUT_S = 120.0
 
 
 def import_distributed():
@@ -256,6 +259,27 @@ def build_meshes(runs):
     return meshes, keys
 
 
+def scatter_meshes(client, meshes, timeout=None):
+    """Each mesh of ``meshes`` ({key: mesh}) sent to a worker once: {key: future}, for the runs to take.
+
+    A scatter that has not finished after ``timeout`` seconds (``SCATTER_TIMEOUT_S``) is given up,
+    with a warning, and that mesh is returned itself: each run using it then carries it in its task,
+    which is slower but still runs.  (``Client.scatter``'s own ``timeout`` bounds only the wait for a
+    worker; a scatter has been seen to hang on a cluster whose previous sweep was cancelled, as in
+    dask/distributed#4907.)
+    """
+    timeout = SCATTER_TIMEOUT_S if timeout is None else timeout
+    scattered = {}
+    for key, mesh in meshes.items():
+        try:
+            scattered[key] = client.sync(functools.partial(client.scatter, mesh, hash=False, asynchronous=True),
+                                         callback_timeout=timeout)
+        except TimeoutError:
+            log.warning("sending a mesh to the workers took over %g s; the runs carry it themselves", timeout)
+            scattered[key] = mesh
+    return scattered
+
+
 @contextlib.contextmanager
 def _sigint_ignored_in_children():
     """While inside, SIGINT is ignored, so worker processes started now ignore Ctrl-C.
@@ -352,7 +376,7 @@ def run_sweep(runs, output_dir, client, shared_dir=False, force=False, numba_thr
         progress(done, failed, min(slots, len(to_run)), total)
     try:
         distributed = import_distributed() if to_run else None
-        mesh_futures = {key: client.scatter(mesh, hash=False) for key, mesh in meshes.items()}
+        mesh_futures = scatter_meshes(client, meshes)
         target = str(output_dir) if shared_dir else None
         for run in to_run:
             future = client.submit(execute_run, run.scene, mesh_futures[mesh_keys[run.index]], run.name,
