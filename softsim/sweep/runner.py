@@ -12,6 +12,7 @@ without it, and ``import_distributed`` names the extra to install.
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import functools
 import logging
@@ -265,8 +266,8 @@ def scatter_meshes(client, meshes, timeout=None):
     A scatter that has not finished after ``timeout`` seconds (``SCATTER_TIMEOUT_S``) is given up,
     with a warning, and that mesh is returned itself: each run using it then carries it in its task,
     which is slower but still runs.  (``Client.scatter``'s own ``timeout`` bounds only the wait for a
-    worker; a scatter has been seen to hang on a cluster whose previous sweep was cancelled, as in
-    dask/distributed#4907.)
+    worker.  A scatter was once seen to hang here, on a local cluster whose previous sweep had been
+    cancelled, the workers idle; scatters hanging in tests are dask/distributed#4907.)
     """
     timeout = SCATTER_TIMEOUT_S if timeout is None else timeout
     scattered = {}
@@ -274,7 +275,7 @@ def scatter_meshes(client, meshes, timeout=None):
         try:
             scattered[key] = client.sync(functools.partial(client.scatter, mesh, hash=False, asynchronous=True),
                                          callback_timeout=timeout)
-        except TimeoutError:
+        except (TimeoutError, asyncio.TimeoutError):     # the same class from Python 3.11 on
             log.warning("sending a mesh to the workers took over %g s; the runs carry it themselves", timeout)
             scattered[key] = mesh
     return scattered
