@@ -18,6 +18,8 @@ import time
 import numba
 import numpy as np
 
+from softsim.integrators.guard import RECHECK_STEPS
+
 from . import peers
 from .beam import Softsim, prepared_beam, system_arrays
 from .stream import BYTES_PER_TET_STEP, Stream
@@ -204,40 +206,54 @@ def features(target, seconds, repeats, threads):
 
 def overhead(target, frames, threads, interval=0.001):
     """Time outside the kernels in ``simulate`` (guard, energy, output) at a frame ``interval`` [s]:
-    the whole run against the time spent inside its ``step`` calls (timed by wrapping ``step``)."""
+    the whole run against the time spent inside its ``step`` calls (timed by wrapping ``step``),
+    and the share of it the guard's checks take (``FrameGuard.check`` and ``recheck_step``, wrapped
+    the same way): the rest is the frames' output (HDF5) and the loop itself."""
     from softsim import simulation
+    from softsim.integrators.guard import FrameGuard
 
     prepared = prepared_beam(target, output={"frame_interval": interval, "fields": []},
                              time={"duration": interval * frames})
     steps = prepared.plan.total_steps
-    inside = [0.0]
-    plain_step = simulation.step
+    spent = {"step": 0.0, "guard": 0.0}
 
-    def timed_step(*args, **kwargs):
-        start = time.perf_counter()
-        plain_step(*args, **kwargs)
-        inside[0] += time.perf_counter() - start
+    def timed(function, key):
+        def wrapper(*args, **kwargs):
+            start = time.perf_counter()
+            try:
+                return function(*args, **kwargs)
+            finally:
+                spent[key] += time.perf_counter() - start
+        return wrapper
 
-    shares, rates = [], []
+    plain = (simulation.step, FrameGuard.check, FrameGuard.recheck_step)
+    outside, guard, rates = [], [], []
     with tempfile.TemporaryDirectory() as tmp:
         simulation.simulate(prepared, os.path.join(tmp, "warm.h5"))        # compile the guard and the writer
-        simulation.step = timed_step
+        simulation.step = timed(plain[0], "step")
+        FrameGuard.check = timed(plain[1], "guard")
+        FrameGuard.recheck_step = timed(plain[2], "guard")
         try:
             for k in range(3):
-                inside[0] = 0.0
+                spent.update(step=0.0, guard=0.0)
                 start = time.perf_counter()
                 simulation.simulate(prepared, os.path.join(tmp, f"run{k}.h5"))
                 wall = time.perf_counter() - start
-                shares.append(1.0 - inside[0] / wall)
+                outside.append(1.0 - spent["step"] / wall)
+                guard.append(spent["guard"] / wall)
                 rates.append(prepared.model.tet_count * steps / wall / 1e6)
         finally:
-            simulation.step = plain_step
-    outside = statistics.median(shares)
+            simulation.step, FrameGuard.check, FrameGuard.recheck_step = plain
     ms = f"{interval * 1e3:g} ms"
-    log(f"  {frames} frames of {ms}, {steps} steps: {outside:.1%} of the run outside the step loop")
+    log(f"  {frames} frames of {ms}, {steps} steps: {statistics.median(outside):.1%} of the run outside the step "
+        f"loop, the guard {statistics.median(guard):.1%}")
+    note = f"{frames} frames every {ms} ({steps // frames} steps each)"
     return [row("overhead", f"outside kernels, frames every {ms}", prepared.model.tet_count, "softsim", threads,
-                statistics.median(rates), outside, "share of wall time",
-                note=f"{frames} frames every {ms} ({steps // frames} steps each): guard checks, frame writes (HDF5)")]
+                statistics.median(rates), statistics.median(outside), "share of wall time",
+                note=f"{note}: guard checks, frame writes (HDF5)"),
+            row("overhead", f"guard, frames every {ms}", prepared.model.tet_count, "softsim", threads,
+                statistics.median(rates), statistics.median(guard), "share of wall time",
+                note=f"{note}: the stable step's rechecks every {RECHECK_STEPS} steps and the frame checks")]
 
 
 def _probe(args, env=None):

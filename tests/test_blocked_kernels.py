@@ -438,13 +438,15 @@ def test_the_blocked_element_checks_match_naive_volume_ratios_and_stretches():
     x[tets[:40, 0]] = x[tets[:40, 1:]].mean(axis=1) * 2.0 - x[tets[:40, 0]]    # mirror corner 0: inverted
     m = body.tet_count
     J, stretch = np.full(m, np.nan), np.full(m, np.nan)
-    block_volume_ratios_and_stretches(x, body.blocks.tets, body.blocks.rest, m, body.blocks.whole_rows, J, stretch)
+    ones = np.ones(m)
+    assert block_volume_ratios_and_stretches(x, body.blocks.tets, body.blocks.rest, m, body.blocks.whole_rows, J,
+                                             stretch, ones, ones, 0.05)     # the inverted ones moved
     Ds = np.stack([x[tets[:, k]] - x[tets[:, 0]] for k in (1, 2, 3)], axis=2)
     F = Ds @ body.Dm_inv
     np.testing.assert_allclose(J, np.linalg.det(F), rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(stretch, np.sqrt((F * F).sum(axis=(1, 2)) / 3.0), rtol=1e-13)
     assert (J < 0).sum() >= 10
     J_tet, stretch_tet = np.empty(m), np.empty(m)
-    element_volume_ratios_and_stretches(x, body.tets, body.Dm_inv, J_tet, stretch_tet)
+    assert element_volume_ratios_and_stretches(x, body.tets, body.Dm_inv, J_tet, stretch_tet, ones, ones, 0.05)
     np.testing.assert_allclose(J, J_tet, rtol=1e-12, atol=1e-14)
     np.testing.assert_allclose(stretch, stretch_tet, rtol=1e-14)

@@ -151,19 +151,65 @@ def test_refuse_refuses_before_any_output_and_substep_agrees_with_auto(scene, tm
         np.testing.assert_allclose(b["frames/points"][-1], a["frames/points"][-1], atol=0.02 * sag)
 
 
-def test_moved_more_than_agrees_with_the_largest_change_and_counts_nan_as_moved():
+def test_element_checks_tell_whether_any_tet_moved_as_the_largest_change_does_and_nan_moved(scene):
     """The guard's test of whether the elements moved enough since it last computed the stable step
-    to compute it again, in one compiled pass, against the largest change in NumPy."""
-    from softsim.kernels.element_checks import moved_more_than
-    rng = np.random.default_rng(3)
-    J_seen, stretch_seen = rng.uniform(0.5, 1.5, 1000), rng.uniform(0.5, 1.5, 1000)
-    limit = 0.05
-    for scale_J, scale_s in ((1e-3, 0.2), (0.3, 1e-3), (1e-3, 1e-3), (0.0, 0.0)):
-        J = J_seen + scale_J * rng.normal(size=1000)
-        stretch = stretch_seen * (1.0 + scale_s * rng.normal(size=1000))
+    to compute it again, in the same compiled pass that measures J and the stretch (blocked and tet
+    by tet), against the largest change in NumPy; a NaN counts as moved."""
+    from softsim.kernels.element_checks import block_volume_ratios_and_stretches, element_volume_ratios_and_stretches
+
+    model = prepare(scene(mesh={**CUBE, "element_size": 0.03}, material={"model": "stvk", **RUBBER})).model
+    assert model.tet_count % 64 != 0            # a last block part-filled
+    m, rng, limit = model.tet_count, np.random.default_rng(3), 0.05
+    x_rest = model.rest_points.copy()
+    J_rest, stretch_rest, J, stretch = np.empty(m), np.empty(m), np.empty(m), np.empty(m)
+    element_volume_ratios_and_stretches(x_rest, model.tets, model.Dm_inv, J_rest, stretch_rest, np.ones(m),
+                                        np.ones(m), limit)
+
+    def both_say(x, J_seen, stretch_seen):
+        blocked = block_volume_ratios_and_stretches(x, model.blocks.tets, model.blocks.rest, m, model.blocks.whole_rows,
+                                                    J, stretch, J_seen, stretch_seen, limit)
+        J_blocked, stretch_blocked = J.copy(), stretch.copy()
+        per_tet = element_volume_ratios_and_stretches(x, model.tets, model.Dm_inv, J, stretch, J_seen, stretch_seen,
+                                                      limit)
+        np.testing.assert_allclose(J_blocked, J, rtol=1e-12)
+        np.testing.assert_allclose(stretch_blocked, stretch, rtol=1e-12)
+        assert blocked == per_tet
+        return blocked
+
+    size = np.ptp(x_rest, axis=0).max()
+    for scale in (0.0, 1e-4, 1e-3, 1e-2, 3e-2, 1e-1):
+        x = x_rest + scale * size * rng.normal(size=x_rest.shape)
+        J_seen = J_rest * (1.0 + 0.01 * rng.normal(size=m))
+        stretch_seen = stretch_rest * (1.0 + 0.01 * rng.normal(size=m))
+        said = both_say(x, J_seen, stretch_seen)
         change = max(np.abs(J - J_seen).max(), np.abs(stretch / stretch_seen - 1.0).max())
-        assert moved_more_than(J, J_seen, stretch, stretch_seen, limit) == (change > limit)
-    assert not moved_more_than(J, J_seen, stretch, stretch_seen, limit)
-    stretch[7] = np.nan
-    assert moved_more_than(J, J_seen, stretch, stretch_seen, limit)
-    assert not moved_more_than(J[:0], J_seen[:0], stretch[:0], stretch_seen[:0], limit)
+        assert said == (change > limit), (scale, change)
+    x = x_rest.copy()
+    assert not both_say(x, J_rest, stretch_rest)
+    for factor in (0.9, 1.1):          # one tet's J, or its stretch, just inside or past the limit
+        e = rng.integers(m)
+        J_seen = J_rest.copy()
+        J_seen[e] -= factor * limit
+        assert both_say(x, J_seen, stretch_rest) == (factor > 1.0)
+        stretch_seen = stretch_rest.copy()
+        stretch_seen[e] /= 1.0 + factor * limit
+        assert both_say(x, J_rest, stretch_seen) == (factor > 1.0)
+    x[model.tets[m // 2, 0], 1] = np.nan
+    assert both_say(x, J_rest, stretch_rest)
+
+
+def test_all_finite_finds_one_nan_or_infinite_value_in_positions_or_velocities():
+    from softsim.kernels.element_checks import all_finite
+    rng = np.random.default_rng(5)
+    for n in (1, 7, 1000):
+        x, v = rng.normal(size=(n, 3)) * 1e300, rng.normal(size=(n, 3))
+        assert all_finite(x, v)
+        for bad in (np.nan, np.inf, -np.inf):
+            for array in (x, v):
+                kept = array[n - 1, 2]
+                array[n - 1, 2] = bad
+                assert not all_finite(x, v)
+                array[n - 1, 2] = kept
+    assert all_finite(np.empty((0, 3)), np.empty((0, 3)))
+
+
