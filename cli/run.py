@@ -27,6 +27,8 @@ def _progress_bar(total_steps):
 
 
 EXIT_INTERRUPTED = 130
+# The summary line names the compile time when it is at least this [s].
+COMPILE_NOTE_S = 0.5
 
 
 @contextlib.contextmanager
@@ -98,8 +100,10 @@ def run(scene, output, overwrite, resume, yes, overrides):
     finally:
         if bar is not None:
             bar.close()
+    compiling = (f" ({summary.compile_time_s:.1f} s of it compiling the kernels, once: later runs load them from "
+                 f"the cache)" if summary.compile_time_s >= COMPILE_NOTE_S else "")
     click.echo(f"{summary.path}: {summary.steps} steps, dt {summary.dt:.4g} s, {summary.frames} frames, "
-               f"wall {summary.wall_time_s:.2f} s, {summary.tet_steps_per_s / 1e6:.3g} M tet-steps/s")
+               f"wall {summary.wall_time_s:.2f} s{compiling}, {summary.tet_steps_per_s / 1e6:.3g} M tet-steps/s")
     if summary.status == "interrupted":
         click.echo(f"softsim: interrupted at t = {summary.time:.6g} s; {summary.frames} frames kept in "
                    f"{summary.path} (status: interrupted)", err=True)

@@ -5,6 +5,7 @@ file is written; ``simulate`` runs the prepared scene frame by frame.  Kernels d
 this module only decides what to call and in which order.
 """
 
+import dataclasses
 import logging
 import math
 import time as _time
@@ -24,7 +25,7 @@ from .integrators.timestep import (AUTO_EIGEN_ITERATIONS, AUTO_EIGEN_MIN_STEPS, 
 from .io.hdf5 import RunWriter, check_writable, frames_written, free_bytes, read_resume_state
 from .kernels.energy import elastic_energy, gravity_energy, kinetic_energy
 from .kernels.fields import tet_fields
-from .kernels.jit import threading_layer
+from .kernels.jit import compile_timer, threading_layer
 from .mesh import build_mesh
 from .model import State, build_model, initial_state
 
@@ -62,8 +63,9 @@ class Prepared:
 
 @dataclass(frozen=True)
 class RunSummary:
-    """What a finished run reports: planned steps, dt [s], wall time [s], tet-steps per second
-    (counting sub-steps), frames and the output path."""
+    """What a finished run reports: planned steps, dt [s], wall time [s] (compiling included),
+    tet-steps per second (counting sub-steps; over the wall time less the compiling), frames and
+    the output path."""
 
     steps: int
     dt: float
@@ -73,6 +75,7 @@ class RunSummary:
     path: str
     status: str = "complete"      # or "interrupted" (stopped on request after a whole frame)
     time: float = 0.0             # simulated time reached [s]
+    compile_time_s: float = 0.0   # of the wall time, Numba compiling kernels its disk cache did not hold
 
 
 def stable_dt_estimate(model):
@@ -238,6 +241,17 @@ def simulate(prepared, output_path, progress=None, should_stop=None, resume=Fals
     On an exception or KeyboardInterrupt the file keeps its frames and gets status ``failed`` /
     ``interrupted``.
     """
+    started = _time.perf_counter()
+    with compile_timer() as compiled:
+        summary, tet_steps = _simulate(prepared, output_path, progress, should_stop, resume)
+    wall = _time.perf_counter() - started
+    compiling = compiled()
+    return dataclasses.replace(summary, wall_time_s=wall, compile_time_s=compiling,
+                               tet_steps_per_s=tet_steps / max(wall - compiling, 1e-12))
+
+
+def _simulate(prepared, output_path, progress, should_stop, resume):
+    """``simulate``'s run: returns its ``RunSummary`` (times to be filled in) and the tet-steps taken."""
     scene, model, plan = prepared.scene, prepared.model, prepared.plan
     state = initial_state(scene, model)
     fields = scene.output.fields
@@ -250,7 +264,6 @@ def simulate(prepared, output_path, progress=None, should_stop=None, resume=Fals
                             model.to_user_order(state.v), energy, guard.snapshot(),
                             frame_fields(model, state, fields))
 
-    started = _time.perf_counter()
     if resume:
         writer, stored = RunWriter.reopen(output_path, fields, frames=len(plan.frame_steps))
         state.x[...] = model.from_user_order(stored["positions"])
@@ -292,10 +305,9 @@ def simulate(prepared, output_path, progress=None, should_stop=None, resume=Fals
                 break
         else:
             frames = writer.frame_count
-    wall = _time.perf_counter() - started
-    return RunSummary(steps=plan.total_steps, dt=plan.dt, wall_time_s=wall,
-                      tet_steps_per_s=model.tet_count * steps_taken / max(wall, 1e-12),
-                      frames=frames, path=str(output_path), status=status, time=state.step * plan.dt)
+    summary = RunSummary(steps=plan.total_steps, dt=plan.dt, wall_time_s=0.0, tet_steps_per_s=0.0, frames=frames,
+                         path=str(output_path), status=status, time=state.step * plan.dt)
+    return summary, model.tet_count * steps_taken
 
 
 # A run estimated to take longer than this [s of wall time] starts only when confirmed (--yes).

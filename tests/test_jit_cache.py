@@ -32,3 +32,56 @@ def test_second_process_loads_the_step_loop_from_cache():
     _hits_and_misses()                      # compiles (or already cached by an earlier run)
     hits, misses = _hits_and_misses()
     assert (hits, misses) == (1, 0)
+
+
+RUN_SCRIPT = textwrap.dedent("""
+    import sys
+    from softsim.config import parse_scene
+    from softsim.simulation import prepare, simulate
+
+    scene = parse_scene({
+        "mesh": {"shape": "box", "size": [1, 0.2, 0.2], "element_size": 0.1, "structured": True},
+        "material": {"model": "neohookean", "youngs_modulus": 1e5, "poissons_ratio": 0.3, "density": 1000},
+        "fixed": [{"min": [-1, -1, -1], "max": [1e-6, 1, 1]}],
+        "time": {"duration": 0.05}, "output": {"frame_interval": 0.01, "fields": ["von_mises", "energy"]},
+    })
+    prepared = prepare(scene)
+    summary = simulate(prepared, sys.argv[1])
+    print(summary.compile_time_s, summary.wall_time_s, summary.tet_steps_per_s,
+          prepared.model.tet_count * prepared.plan.total_steps * prepared.substeps)
+""")
+
+
+def test_a_second_run_compiles_nothing_and_its_rate_leaves_compiling_out(tmp_path):
+    """The whole run, not only the step loop (the guard's, the energy's and the output fields'
+    kernels too), comes from the cache in a second process; the summary's rate is over the wall
+    time less what compiling took."""
+    def run(name):
+        out = subprocess.run([sys.executable, "-c", RUN_SCRIPT, str(tmp_path / name)], capture_output=True,
+                             text=True, check=True).stdout
+        return [float(value) for value in out.split()[-4:]]
+
+    run("first.h5")                             # compiles (or already cached by an earlier run)
+    compiling, wall, rate, tet_steps = run("second.h5")
+    assert compiling == 0.0
+    assert rate == tet_steps / wall
+
+
+def test_compile_timer_counts_compiling_not_calling():
+    import numba
+
+    from softsim.kernels.jit import compile_timer
+
+    @numba.njit
+    def twice(a):
+        return 2.0 * a
+
+    with compile_timer() as compiled:
+        assert compiled() == 0.0
+        twice(1.0)
+        first = compiled()
+        assert first > 0.0
+        twice(2.0)
+        assert compiled() == first
+    twice(3)                                    # an int: compiled again, outside the timer
+    assert compiled() == first

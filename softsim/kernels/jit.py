@@ -11,6 +11,7 @@ material law of ``materials/models.py``).  Each cache entry is therefore also st
 of the sources of the jitted packages: editing any of them recompiles instead of running stale code.
 """
 
+import contextlib
 import ctypes
 import hashlib
 import importlib.metadata
@@ -18,6 +19,7 @@ import os
 
 import llvmlite.binding
 import numba
+from numba.core import event
 
 # ``fastmath={"contract"}`` lets LLVM fuse a multiply and an add into one FMA (one rounding instead of
 # two) and nothing else: no reassociation, NaN and infinities kept.  Without it the lane loops of
@@ -150,3 +152,13 @@ def njit_inline(func):
 def njit_parallel(func):
     """Compile ``func`` as a cached Numba function whose ``prange`` loops run in parallel."""
     return _stamp_with_package_hash(numba.njit(parallel=True, **JIT_OPTIONS)(func))
+
+
+@contextlib.contextmanager
+def compile_timer():
+    """Time Numba spends compiling while inside (not loading machine code from its disk cache):
+    yields a function returning the seconds so far.  Nested compiles (a kernel and what it calls)
+    count once."""
+    listener = event.TimingListener()
+    with event.install_listener("numba:compile", listener):
+        yield lambda: listener.duration if listener.done else 0.0
