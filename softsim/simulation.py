@@ -5,7 +5,6 @@ file is written; ``simulate`` runs the prepared scene frame by frame.  Kernels d
 this module only decides what to call and in which order.
 """
 
-import dataclasses
 import logging
 import math
 import time as _time
@@ -243,15 +242,19 @@ def simulate(prepared, output_path, progress=None, should_stop=None, resume=Fals
     """
     started = _time.perf_counter()
     with compile_timer() as compiled:
-        summary, tet_steps = _simulate(prepared, output_path, progress, should_stop, resume)
+        status, frames, steps_taken, time_reached = _simulate(prepared, output_path, progress, should_stop, resume)
     wall = _time.perf_counter() - started
     compiling = compiled()
-    return dataclasses.replace(summary, wall_time_s=wall, compile_time_s=compiling,
-                               tet_steps_per_s=tet_steps / max(wall - compiling, 1e-12))
+    plan = prepared.plan
+    return RunSummary(steps=plan.total_steps, dt=plan.dt, wall_time_s=wall,
+                      tet_steps_per_s=prepared.model.tet_count * steps_taken / max(wall - compiling, 1e-12),
+                      frames=frames, path=str(output_path), status=status, time=time_reached,
+                      compile_time_s=compiling)
 
 
 def _simulate(prepared, output_path, progress, should_stop, resume):
-    """``simulate``'s run: returns its ``RunSummary`` (times to be filled in) and the tet-steps taken."""
+    """``simulate``'s run: returns its status, the frames in the file, the steps taken (sub-steps
+    counted) and the simulated time reached [s]."""
     scene, model, plan = prepared.scene, prepared.model, prepared.plan
     state = initial_state(scene, model)
     fields = scene.output.fields
@@ -305,9 +308,7 @@ def _simulate(prepared, output_path, progress, should_stop, resume):
                 break
         else:
             frames = writer.frame_count
-    summary = RunSummary(steps=plan.total_steps, dt=plan.dt, wall_time_s=0.0, tet_steps_per_s=0.0, frames=frames,
-                         path=str(output_path), status=status, time=state.step * plan.dt)
-    return summary, model.tet_count * steps_taken
+    return status, frames, steps_taken, state.step * plan.dt
 
 
 # A run estimated to take longer than this [s of wall time] starts only when confirmed (--yes).
