@@ -15,7 +15,7 @@ import numba
 import numpy as np
 
 from .config import scene_to_yaml
-from .integrators.symplectic_euler import advance, step_arguments, step_threads, work_buffer
+from .integrators.symplectic_euler import PartSchedule, advance, step_arguments, step_threads, work_buffer
 from .errors import ConfigError, SimulationError
 from .integrators.guard import RECHECK_STEPS, FrameGuard
 from .integrators.stability import exact_stable_step, nodal_frequency_bound
@@ -179,6 +179,11 @@ def frame_fields(model, state, fields):
     return out
 
 
+# How the colour scatter's parts ran in the last calls of ``step`` (``PartSchedule``): one for the
+# process, as another process taking a core concerns every run in it.
+PART_SCHEDULE = PartSchedule()
+
+
 def step(model, state, dt, step_count, damping, work):
     """Advance ``state`` in place by ``step_count`` symplectic-Euler steps of ``dt`` [s]; work: the
     buffer of ``work_buffer(model)``.  A float32 model steps displacements in float32
@@ -202,13 +207,15 @@ def step(model, state, dt, step_count, damping, work):
     available = numba.get_num_threads()
     threads = step_threads(model.tet_count, available, threading_layer())
     numba.set_num_threads(threads)
+    one_region = PART_SCHEDULE.one_region()
     try:
-        advance(x, rest, v, state.step, step_count, dt,
-                blocks, colour_offsets, scatter, model.material_id, lam, mu, offsets, slots,
-                vertex_forces, corner, inv_mass, gravity, external_accel, model.held, held_start, held_velocity,
-                *model.ground_arguments(), damping_factor, threads)
+        long_waits = advance(x, rest, v, state.step, step_count, dt,
+                             blocks, colour_offsets, scatter, model.material_id, lam, mu, offsets, slots,
+                             vertex_forces, corner, inv_mass, gravity, external_accel, model.held, held_start,
+                             held_velocity, *model.ground_arguments(), damping_factor, threads, one_region)
     finally:
         numba.set_num_threads(available)
+    PART_SCHEDULE.record(one_region, long_waits, step_count * (colour_offsets[-1] if scatter else 0))
     if model.precision == "float32":
         work.store(state, model.rest_points)
     state.step += step_count

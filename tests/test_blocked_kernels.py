@@ -45,9 +45,10 @@ class Body:
         if rest_from_points:          # what a mesh above REST_FROM_POINTS_BYTES gets
             self.blocks = dataclasses.replace(self.blocks, rest_from_points=True)
 
-    def forces(self, x, model, lam, mu, inv_mass=None, gravity=(0.0, 0.0, 0.0), external_accel=None):
+    def forces(self, x, model, lam, mu, inv_mass=None, gravity=(0.0, 0.0, 0.0), external_accel=None, chunks=None):
         """The elastic forces at ``x`` [N] from one step of ``advance`` with ``dt = 1`` and ``v = 0``
-        (plus the external accelerations, and divided by the masses, where given)."""
+        (plus the external accelerations, and divided by the masses, where given); chunks: the
+        ``threads`` argument of ``advance`` (None: Numba's thread count)."""
         n = self.node_count
         x = np.array(x, dtype=np.float64)
         v = np.zeros_like(x)
@@ -55,7 +56,7 @@ class Body:
         no_hold = np.zeros((n, 3), dtype=np.bool_)
         advance(x, None, v, 0, 1, 1.0, blocks, colour_offsets, scatter, MODEL_IDS[model], lam, mu, offsets, slots,
                 vf, corner, np.ones(n) if inv_mass is None else inv_mass, gravity, external_accel, no_hold, x.copy(),
-                np.zeros((n, 3)), None, None, None, numba.get_num_threads())
+                np.zeros((n, 3)), None, None, None, numba.get_num_threads() if chunks is None else chunks)
         return v
 
 
@@ -207,6 +208,8 @@ def test_blocked_forces_are_bitwise_deterministic_on_any_thread_count(scatter):
     try:
         numba.set_num_threads(1)
         assert f1.tobytes() == body.forces(x, "neohookean", lam, mu).tobytes()
+        # more chunks than threads: one thread runs them in turn, the first taking every part
+        assert f1.tobytes() == body.forces(x, "neohookean", lam, mu, chunks=4).tobytes()
     finally:
         numba.set_num_threads(threads)
     assert np.abs(f1.sum(axis=0)).max() < 1e-9 * np.abs(f1).max()     # Newton's third law
@@ -384,7 +387,8 @@ def test_moving_vertices_inside_the_parts_matches_a_numpy_step(ground, scatter, 
     """The colour scatter moves each part's vertices at the start of the part's next step (and,
     with a ground, sums the boundary faces' areas per part): over several calls, with damping, a
     driven face and a ground the beam presses into, it follows a plain NumPy step to round-off,
-    with the same bits on 1 and 2 threads.  The csr scatter (a vertex loop of its own) too."""
+    with the same bits on 1 and 2 threads, the parts of a call in one region or in a region per
+    colour and step (``PartSchedule``).  The csr scatter (a vertex loop of its own) too."""
     from softsim import simulation
     from softsim.config import parse_scene
     from softsim.model import initial_state
@@ -405,9 +409,10 @@ def test_moving_vertices_inside_the_parts_matches_a_numpy_step(ground, scatter, 
                                                                      model.node_count, "csr"))
     dt = prepared.plan.dt
     results = []
-    for threads in (1, 2):
+    for threads, one_region in ((1, True), (2, True), (2, False)):
         numba_threads = numba.get_num_threads()
         numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+        monkeypatch.setattr(simulation.PART_SCHEDULE, "one_region", lambda: one_region)
         try:
             state = initial_state(prepared.scene, model)
             work = simulation.work_buffer(model)
@@ -416,7 +421,8 @@ def test_moving_vertices_inside_the_parts_matches_a_numpy_step(ground, scatter, 
             results.append((state.x.copy(), state.v.copy()))
         finally:
             numba.set_num_threads(numba_threads)
-    assert results[0][0].tobytes() == results[1][0].tobytes() and results[0][1].tobytes() == results[1][1].tobytes()
+    for x, v in results[1:]:
+        assert results[0][0].tobytes() == x.tobytes() and results[0][1].tobytes() == v.tobytes()
     x_ref, v_ref = numpy_steps(model, initial_state(prepared.scene, model), dt, 20, prepared.scene.damping)
     moved = np.abs(x_ref - model.rest_points).max()
     assert moved > 1e-4

@@ -28,12 +28,14 @@ from ..kernels.blocked import (BLOCK, SCRATCH_ROWS, block_forces, cache_aligned_
                                prefetch_vertex_rows, scatter_block, store_block_corners)
 from ..kernels.forces import gather_vertex_force
 from ..kernels.jit import njit, njit_inline, njit_parallel
-from ..kernels.simd import FORCE_COLUMNS, flush_subnormals, restore_float_control
+from ..kernels.simd import CACHE_LINE_BYTES, FORCE_COLUMNS, flush_subnormals, restore_float_control
+from ..kernels.sync import fetch_add, load_acquire, spin_pause, yield_thread
 
 
-# Tets per thread of the step: fewer threads for a smaller mesh, one below 2 x this.  Each step
-# passes two parallel regions (one per colour), about 1 us each on TBB, tens of microseconds on a
-# passive OpenMP (``kernels.jit``); on the beam, 1 / 2 threads (M tet-steps/s, medians of 5 timings,
+# Tets per thread of the step: fewer threads for a smaller mesh, one below 2 x this.  Measured when
+# each step passed two parallel regions (one per colour; now the parts of a call share one region
+# unless another process takes a core, ``PartSchedule``), about 1 us each on TBB, tens of
+# microseconds on a passive OpenMP (``kernels.jit``); on the beam, 1 / 2 threads (M tet-steps/s, medians of 5 timings,
 # two alternating processes each): TBB 26 / 16 at 300 tets, 37 / 18-28 at 600, 46-49 / 29-55 at
 # 1k, 56 / 64-80 at 2.5k, 58 / 90 at 5k, 60 / 86-108 at 10k; passive OpenMP 59.6 / 48.8 at 10k,
 # 46.5 / 53.9 at 20k, 51.3 / 62.9 at 28k.
@@ -174,6 +176,70 @@ def update_from_forces(x, rest, v, vertex_forces, i, dt, t_next, inv_mass, gravi
                   held_velocity, ground, damping_factor)
 
 
+# ``advance``'s counters of the parts of a call run in one region (``part_tasks``), a cache line
+# apart: parts taken, parts done, waits that outlasted the spinning.
+COUNTER_STRIDE = CACHE_LINE_BYTES // 8
+TAKEN = 0
+DONE = COUNTER_STRIDE
+LONG_WAITS = 2 * COUNTER_STRIDE
+# Pauses (``kernels.sync.spin_pause``, 9.5 ns each on this host: 19 us in all) a thread spins while
+# it waits for another's part, before it yields its core between further looks.  A wait that long
+# means that the other thread lost its core (another process holds one).
+SPINS_BEFORE_YIELD = 2_000
+
+
+@njit_inline
+def wait_until_done(counters, target):
+    """Spin until ``counters[DONE]`` reaches ``target`` parts: ``spin_pause`` for
+    ``SPINS_BEFORE_YIELD`` looks, then ``yield_thread`` between looks (counted in
+    ``counters[LONG_WAITS]``)."""
+    spins = 0
+    while load_acquire(counters, DONE) < target:
+        if spins < SPINS_BEFORE_YIELD:
+            spin_pause()
+            spins += 1
+        else:
+            if spins == SPINS_BEFORE_YIELD:
+                fetch_add(counters, LONG_WAITS, 1)
+                spins += 1
+            yield_thread()
+
+
+class PartSchedule:
+    """Which way ``advance`` runs the parts of the colour scatter, call by call (``one_region``).
+
+    In one region per call the threads take parts from a shared counter and wait for each other
+    by spinning: no parallel region to start per colour and step.  Beam, 2 threads, M tet-steps/s,
+    a process each, alternating, quiet host: 10k tets 185-195 against 155-167 with a region per
+    colour and step, 100k 204-227 against 198-218.  But where another process holds a core, a
+    thread loses its core while it holds a part, and the other waits for it: 10k 89-95 against
+    113-114, 100k 108-112 against 113-115.  Waits past the spinning (``SPINS_BEFORE_YIELD``) tell
+    the two apart: on the quiet host 0-2 in a call of 800 parts at 10k, 0-6 of 160 at 100k; with
+    a core taken 57-190 and 2-37.  So a call in one region whose long waits exceed
+    ``LONG_WAIT_SHARE`` of its parts sends the next ``SEPARATE_CALLS`` calls to a region per colour
+    and step (TBB's waiting threads sleep, freeing the core); then one region is tried again.
+    """
+
+    def __init__(self):
+        self.separate_calls_left = 0
+
+    def one_region(self):
+        """Whether the next call runs in one region."""
+        return self.separate_calls_left == 0
+
+    def record(self, one_region, long_waits, parts):
+        """Note a call's way (``one_region``), its ``long_waits`` (``advance``'s result) and the
+        ``parts`` it ran (steps x parts a step)."""
+        if not one_region:
+            self.separate_calls_left = max(0, self.separate_calls_left - 1)
+        elif long_waits > LONG_WAIT_SHARE * parts:
+            self.separate_calls_left = SEPARATE_CALLS
+
+
+LONG_WAIT_SHARE = 0.1
+SEPARATE_CALLS = 16
+
+
 @njit
 def block_range_forces(x, rest, blocks, first, stop, model, lam, mu, scatter, vertex_forces, corner_forces, buf):
     """Forces of blocks ``first`` to ``stop - 1``, in order (in the precision of ``blocks``' rest data),
@@ -197,11 +263,32 @@ def block_range_forces(x, rest, blocks, first, stop, model, lam, mu, scatter, ve
             store_block_corners(b, lane_count, buf, corner_forces)
 
 
+@njit
+def part_step(x, rest, v, step_start, step, dt, blocks, part, model, lam, mu, vertex_forces, corner_forces,
+              inv_mass, gravity, external_accel, held, held_start, held_velocity, ground, ground_faces,
+              damping_factor, scratch):
+    """Part ``part``'s share of step ``step`` of the colour scatter (``advance``, same arguments):
+    after the first step of the call the previous step's update of the vertices the part owns,
+    then its faces' areas (with a ground) and its blocks' forces, added into ``vertex_forces``."""
+    run_offsets = blocks[5]
+    owned_runs = blocks[6]
+    part_offsets = blocks[3]
+    if step > step_start:
+        for r in range(run_offsets[part], run_offsets[part + 1]):
+            for i in range(owned_runs[r, 0], owned_runs[r, 1]):
+                update_from_forces(x, rest, v, vertex_forces, i, dt, step * dt, inv_mass, gravity, external_accel,
+                                   held, held_start, held_velocity, ground, damping_factor)
+    if ground is not None:
+        part_face_areas(x, rest, ground_faces, ground[3], part)
+    block_range_forces(x, rest, blocks, part_offsets[part], part_offsets[part + 1], model, lam, mu, True,
+                       vertex_forces, corner_forces, scratch[part * SCRATCH:(part + 1) * SCRATCH])
+
+
 @njit_parallel
 def advance(x, rest, v, step_start, step_count, dt,
             blocks, colour_offsets, scatter, model, lam, mu, offsets, slots, vertex_forces, corner_forces,
             inv_mass, gravity, external_accel, held, held_start, held_velocity,
-            ground, ground_faces, damping_factor, threads):
+            ground, ground_faces, damping_factor, threads, one_region=True):
     """Advance positions ``x`` and velocities ``v`` (node_count, 3) [m, m/s] in place by ``step_count`` steps.
 
     rest: None; or, in float32, the rest positions (n, 3) [m], ``x`` then holding displacements
@@ -216,8 +303,11 @@ def advance(x, rest, v, step_start, step_count, dt,
     at a time, its parts in parallel; False: stored into ``corner_forces`` (tet_count, 4, 3) and
     gathered per vertex through the vertex -> (tet, corner) map ``offsets`` (n+1,), ``slots`` (4m,).
     The colour scatter moves each part's vertices (``BlockLayout.owned_runs``) at the start of the
-    part's next step, in the same parallel loop, and all of them after the last step: one barrier
-    per colour and step, none for the vertex update.  Each vertex gets the same arithmetic in the
+    part's next step (``part_step``), and all of them after the last step: one wait per colour and
+    step, none for the vertex update.  one_region: the parts of every step in one parallel region,
+    each thread taking the next part (in step and colour order) from a shared counter and waiting,
+    spinning, until the colours before it are done (``kernels.sync``); else a region per colour and
+    step (``PartSchedule`` chooses).  Returns the waits that outlasted the spinning (0 for csr).  Each vertex gets the same arithmetic in the
     same order as in a separate vertex loop, so the same bits.  With a ground, each part also
     adds its boundary faces' areas to their corners (``part_face_areas``) from the positions its
     forces see; the contact of the vertex update reads them, not the neighbours' positions.  The
@@ -243,30 +333,42 @@ def advance(x, rest, v, step_start, step_count, dt,
     # a scratch buffer per part (colour) or chunk (csr), made once per call, not per part and step
     scratch = cache_aligned_scratch(max(part_offsets.shape[0] - 1, threads) * SCRATCH, blocks[1])
     if scatter:
-        run_offsets = blocks[5]
-        owned_runs = blocks[6]
         for i in prange(node_count):
             for k in range(FORCE_COLUMNS):
                 vertex_forces[i, k] = 0.0
             if ground is not None:
                 ground[3][i] = 0.0
-        for step in range(step_start, step_start + step_count):
-            for colour in range(colour_offsets.shape[0] - 1):
-                for k in prange(colour_offsets[colour], colour_offsets[colour + 1]):
-                    control = flush_subnormals()
-                    part = colour_parts[k]
-                    if step > step_start:         # the previous step's update of this part's vertices
-                        for r in range(run_offsets[part], run_offsets[part + 1]):
-                            for i in range(owned_runs[r, 0], owned_runs[r, 1]):
-                                update_from_forces(x, rest, v, vertex_forces, i, dt, step * dt, inv_mass, gravity,
-                                                   external_accel, held, held_start, held_velocity, ground,
-                                                   damping_factor)
-                    if ground is not None:
-                        part_face_areas(x, rest, ground_faces, ground[3], part)
-                    block_range_forces(x, rest, blocks, part_offsets[part], part_offsets[part + 1],
-                                       model, lam, mu, scatter, vertex_forces, corner_forces,
-                                       scratch[part * SCRATCH:(part + 1) * SCRATCH])
-                    restore_float_control(control)
+        counters = np.zeros(3 * COUNTER_STRIDE, dtype=np.int64)
+        if one_region:
+            # every part of every step in one region: each thread takes the next part in (step,
+            # colour) order and first waits until every part of the colours before it is done
+            part_count = colour_parts.shape[0]
+            task_count = step_count * part_count
+            for chunk in prange(threads):
+                control = flush_subnormals()
+                while True:
+                    task = fetch_add(counters, TAKEN, 1)
+                    if task >= task_count:
+                        break
+                    k = task % part_count
+                    colour = 0
+                    while colour_offsets[colour + 1] <= k:
+                        colour += 1
+                    wait_until_done(counters, task - k + colour_offsets[colour])
+                    part_step(x, rest, v, step_start, step_start + task // part_count, dt, blocks, colour_parts[k],
+                              model, lam, mu, vertex_forces, corner_forces, inv_mass, gravity, external_accel,
+                              held, held_start, held_velocity, ground, ground_faces, damping_factor, scratch)
+                    fetch_add(counters, DONE, 1)
+                restore_float_control(control)
+        else:
+            for step in range(step_start, step_start + step_count):
+                for colour in range(colour_offsets.shape[0] - 1):
+                    for k in prange(colour_offsets[colour], colour_offsets[colour + 1]):
+                        control = flush_subnormals()
+                        part_step(x, rest, v, step_start, step, dt, blocks, colour_parts[k],
+                                  model, lam, mu, vertex_forces, corner_forces, inv_mass, gravity, external_accel,
+                                  held, held_start, held_velocity, ground, ground_faces, damping_factor, scratch)
+                        restore_float_control(control)
         if step_count > 0:
             chunks = min(threads, node_count)
             for chunk in prange(chunks):
@@ -276,7 +378,7 @@ def advance(x, rest, v, step_start, step_count, dt,
                                        gravity, external_accel, held, held_start, held_velocity, ground,
                                        damping_factor)
                 restore_float_control(control)
-        return
+        return counters[LONG_WAITS]
     for step in range(step_start, step_start + step_count):      # csr
         t_next = (step + 1) * dt
         chunks = min(threads, block_count)
@@ -297,6 +399,7 @@ def advance(x, rest, v, step_start, step_count, dt,
                 update_vertex(x, rest, v, i, fx, fy, fz, dt, t_next, inv_mass, gravity, external_accel, held,
                               held_start, held_velocity, ground, damping_factor)
             restore_float_control(control)
+    return 0
 
 
 def step_arguments(model, work):
