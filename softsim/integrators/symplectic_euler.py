@@ -176,7 +176,7 @@ def update_from_forces(x, rest, v, vertex_forces, i, dt, t_next, inv_mass, gravi
                   held_velocity, ground, damping_factor)
 
 
-# ``advance``'s counters of the parts of a call run in one region (``part_tasks``), a cache line
+# ``advance``'s counters of the parts of a call run in one region (``one_region``), a cache line
 # apart: parts taken, parts done, waits that outlasted the spinning.
 COUNTER_STRIDE = CACHE_LINE_BYTES // 8
 TAKEN = 0
@@ -263,13 +263,15 @@ def block_range_forces(x, rest, blocks, first, stop, model, lam, mu, scatter, ve
             store_block_corners(b, lane_count, buf, corner_forces)
 
 
-@njit
+@njit_inline
 def part_step(x, rest, v, step_start, step, dt, blocks, part, model, lam, mu, vertex_forces, corner_forces,
               inv_mass, gravity, external_accel, held, held_start, held_velocity, ground, ground_faces,
               damping_factor, scratch):
     """Part ``part``'s share of step ``step`` of the colour scatter (``advance``, same arguments):
     after the first step of the call the previous step's update of the vertices the part owns,
-    then its faces' areas (with a ground) and its blocks' forces, added into ``vertex_forces``."""
+    then its faces' areas (with a ground) and its blocks' forces, added into ``vertex_forces``.
+    Inlined into both of ``advance``'s schedules: compiled as a function of its own, the beam with
+    a ground below it stepped at 0.66x the bare beam's rate instead of 0.96x (100k tets)."""
     run_offsets = blocks[5]
     owned_runs = blocks[6]
     part_offsets = blocks[3]
