@@ -35,8 +35,8 @@ from ..kernels.sync import fetch_add, load_acquire, spin_pause, yield_thread
 # Tets per thread of the step: fewer threads for a smaller mesh, one below 2 x this.  Measured when
 # each step passed two parallel regions (one per colour; now the parts of a call share one region
 # unless another process takes a core, ``PartSchedule``), about 1 us each on TBB, tens of
-# microseconds on a passive OpenMP (``kernels.jit``); on the beam, 1 / 2 threads (M tet-steps/s, medians of 5 timings,
-# two alternating processes each): TBB 26 / 16 at 300 tets, 37 / 18-28 at 600, 46-49 / 29-55 at
+# microseconds on a passive OpenMP (``kernels.jit``); on the beam, 1 / 2 threads (M tet-steps/s,
+# medians of 5 timings, two alternating processes each): TBB 26 / 16 at 300 tets, 37 / 18-28 at 600, 46-49 / 29-55 at
 # 1k, 56 / 64-80 at 2.5k, 58 / 90 at 5k, 60 / 86-108 at 10k; passive OpenMP 59.6 / 48.8 at 10k,
 # 46.5 / 53.9 at 20k, 51.3 / 62.9 at 28k.
 # Values of a block's scratch buffer (``kernels.blocked.SCRATCH_ROWS``: the rows of a block, then
@@ -218,6 +218,9 @@ class PartSchedule:
     a core taken 57-190 and 2-37.  So a call in one region whose long waits exceed
     ``LONG_WAIT_SHARE`` of its parts sends the next ``SEPARATE_CALLS`` calls to a region per colour
     and step (TBB's waiting threads sleep, freeing the core); then one region is tried again.
+    With the switch, against a region per colour and step always (three alternating processes
+    each): quiet, 10k 1.14-1.19x, 100k 1.01-1.08x, 310k 1.01-1.04x; with another process spinning
+    on a core, 0.92-1.09x at 10k to 310k, medians 0.95-0.98x.
     """
 
     def __init__(self):
@@ -309,8 +312,9 @@ def advance(x, rest, v, step_start, step_count, dt,
     step, none for the vertex update.  one_region: the parts of every step in one parallel region,
     each thread taking the next part (in step and colour order) from a shared counter and waiting,
     spinning, until the colours before it are done (``kernels.sync``); else a region per colour and
-    step (``PartSchedule`` chooses).  Returns the waits that outlasted the spinning (0 for csr).  Each vertex gets the same arithmetic in the
-    same order as in a separate vertex loop, so the same bits.  With a ground, each part also
+    step (``PartSchedule`` chooses).  Returns the waits that outlasted the spinning (0 for csr).
+    Each vertex gets the same arithmetic in the same order as in a separate vertex loop, so the
+    same bits, in either schedule.  With a ground, each part also
     adds its boundary faces' areas to their corners (``part_face_areas``) from the positions its
     forces see; the contact of the vertex update reads them, not the neighbours' positions.  The
     csr scatter updates every vertex in a loop of its own after each step, with a ground after

@@ -48,7 +48,8 @@ llvmlite.binding.set_option("softsim", f"-vectorizer-min-trip-count={VECTORIZER_
 #   workqueue                              an earlier run at 100k: 37 / 32
 # (``python -m benchmarks``, layers section, 100k quiet: TBB 117.8, passive OpenMP 101.4,
 # workqueue 78.2.)
-# A step passes two parallel regions (one per colour, ``integrators.symplectic_euler``); an empty
+# When these were measured a step passed two parallel regions (one per colour; the steps of a
+# call now share one region, ``integrators.symplectic_euler.PartSchedule``); an empty
 # region costs 1.2 us with TBB or a spinning OpenMP, 47 us with a passive OpenMP, whose threads
 # sleep in the kernel between regions.  A spinning OpenMP collapses when another process holds a
 # core; TBB, which yields while it waits, does not.  TBB comes from pip's ``tbb`` wheel (a
