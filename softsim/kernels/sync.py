@@ -29,11 +29,11 @@ from llvmlite import ir
 from numba import types
 from numba.extending import intrinsic
 
-from .simd import _data, _int64, _is_x86
+from .simd import _data, _int64, _is_c_array, _is_x86
 
 
 def _is_int64_c_array(t):
-    return isinstance(t, types.Array) and t.ndim == 1 and t.layout == "C" and t.dtype == types.int64
+    return _is_c_array(t, 1) and t.dtype == types.int64
 
 
 @intrinsic
