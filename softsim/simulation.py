@@ -249,7 +249,8 @@ def simulate(prepared, output_path, progress=None, should_stop=None, resume=Fals
     """
     started = _time.perf_counter()
     with compile_timer() as compiled:
-        status, frames, steps_taken, time_reached = _simulate(prepared, output_path, progress, should_stop, resume)
+        status, frames, steps_taken, time_reached = _simulate(prepared, output_path, progress, should_stop, resume,
+                                                              compiled)
     wall = _time.perf_counter() - started
     compiling = compiled()
     plan = prepared.plan
@@ -259,9 +260,10 @@ def simulate(prepared, output_path, progress=None, should_stop=None, resume=Fals
                       compile_time_s=compiling)
 
 
-def _simulate(prepared, output_path, progress, should_stop, resume):
+def _simulate(prepared, output_path, progress, should_stop, resume, compiled):
     """``simulate``'s run: returns its status, the frames in the file, the steps taken (sub-steps
-    counted) and the simulated time reached [s]."""
+    counted) and the simulated time reached [s].  compiled: the compile time so far [s], a
+    function (``kernels.jit.compile_timer``), which the file records with its wall time."""
     scene, model, plan = prepared.scene, prepared.model, prepared.plan
     state = initial_state(scene, model)
     fields = scene.output.fields
@@ -273,6 +275,7 @@ def _simulate(prepared, output_path, progress, should_stop, resume):
         writer.append_frame(state.step * plan.dt, state.step, model.to_user_order(state.x),
                             model.to_user_order(state.v), energy, guard.snapshot(),
                             frame_fields(model, state, fields))
+        writer.compile_time_s = compiled()
 
     if resume:
         writer, stored = RunWriter.reopen(output_path, fields, frames=len(plan.frame_steps))

@@ -108,3 +108,38 @@ def test_the_rate_leaves_out_what_compiling_took(tmp_path, monkeypatch):
     tet_steps = prepared.model.tet_count * prepared.plan.total_steps * prepared.substeps
     assert summary.compile_time_s == 1e-3 and summary.wall_time_s > 1e-3
     assert summary.tet_steps_per_s == tet_steps / (summary.wall_time_s - 1e-3)
+
+
+def test_the_file_records_the_compile_time_and_the_sweep_rate_leaves_it_out(tmp_path, monkeypatch):
+    """The run file's ``compile_time_s`` is the compile timer's (a stand-in reporting 1 ms a
+    session), summed over the sessions of a stopped and resumed run; the sweep summary's
+    ``tet_steps_per_s`` divides by the wall time less it, as ``RunSummary`` does."""
+    import contextlib
+
+    import h5py
+
+    from softsim import simulation
+    from softsim.config import parse_scene
+    from softsim.sweep.metrics import run_metrics
+
+    @contextlib.contextmanager
+    def one_millisecond():
+        yield lambda: 1e-3
+
+    monkeypatch.setattr(simulation, "compile_timer", one_millisecond)
+    prepared = simulation.prepare(parse_scene({
+        "mesh": {"shape": "box", "size": [1, 0.2, 0.2], "element_size": 0.1, "structured": True},
+        "material": {"model": "stvk", "youngs_modulus": 1e5, "poissons_ratio": 0.3, "density": 1000},
+        "time": {"duration": 0.02}, "output": {"frame_interval": 0.01}}))
+    path = tmp_path / "run.h5"
+    first = simulation.simulate(prepared, path, should_stop=lambda: True)
+    assert first.status == "interrupted"
+    with h5py.File(path, "r") as f:
+        assert f.attrs["compile_time_s"] == 1e-3
+    simulation.simulate(prepared, path, resume=True)
+    metrics = run_metrics(path)
+    with h5py.File(path, "r") as f:
+        assert f.attrs["status"] == "complete" and f.attrs["compile_time_s"] == 2e-3
+        wall = float(f.attrs["wall_time_s"])
+    assert metrics["compile_time_s"] == 2e-3
+    assert metrics["tet_steps_per_s"] == prepared.model.tet_count * prepared.plan.total_steps / (wall - 2e-3)

@@ -11,8 +11,10 @@ Layout (a public interface):
   arrays, ``scalars`` (the numbers, named by its attribute ``names``) and ``header`` (one record:
   ``frames`` written, ``step``, ``time`` [s], ``wall_time_s``, ``data_crc``, ``crc``); read it
   with ``read_resume_state`` and the frame count with ``frames_written``
-- root attributes: ``config``, ``dt``, ``steps``, ``wall_time_s``, ``softsim_version``,
-  ``status`` (running | complete | interrupted | failed), ``status_reason``
+- root attributes: ``config``, ``dt``, ``steps``, ``wall_time_s``, ``compile_time_s`` (of the
+  wall time, Numba compiling kernels, summed over the sessions of the run that ended: a killed
+  session's is not known), ``softsim_version``, ``status`` (running | complete | interrupted |
+  failed), ``status_reason``
 
 Crash safety.  The file's structure (its HDF5 metadata) changes only when a run starts, resumes
 or ends.  In between, the ``frames/*`` datasets hold a row for every planned frame, allocated up
@@ -100,6 +102,8 @@ class RunWriter:
         self._started = _time.perf_counter()
         self.frame_count = 0
         self._last_slot = None
+        self.compile_time_s = 0.0        # this session's compiling [s], kept up to date by the caller
+        self._compile_before = 0.0       # earlier sessions' (a resumed run)
         # The file is built under a temporary name and renamed once its mesh and empty frame
         # datasets are on disk, so ``path`` never names a file that a plain reader cannot open.
         partial = self.path.with_name(f".{self.path.name}.partial-{os.getpid()}")
@@ -125,7 +129,7 @@ class RunWriter:
         """Write the mesh, the attributes, the frame datasets (``frames`` rows, allocated) and the
         state slots, then flush."""
         f = self.file
-        f.attrs.update(config=config_yaml, dt=float(dt), steps=int(steps), wall_time_s=0.0,
+        f.attrs.update(config=config_yaml, dt=float(dt), steps=int(steps), wall_time_s=0.0, compile_time_s=0.0,
                        softsim_version=__version__, status="running", status_reason="")
         mesh = f.create_group("mesh")
         mesh.create_dataset("points", data=np.asarray(points, np.float64))
@@ -186,6 +190,8 @@ class RunWriter:
         self._last_slot, state = newest
         self.frame_count = int(state["frames"])
         self._started = _time.perf_counter() - float(state["wall_time_s"])
+        self.compile_time_s = 0.0
+        self._compile_before = float(f.attrs.get("compile_time_s", 0.0))
         for dataset in _frame_datasets(f):
             if dataset.shape[0] < frames:
                 dataset.resize(frames, axis=0)
@@ -305,7 +311,8 @@ class RunWriter:
                     trimmed = True
             crash_point("finish_before_status")
             self.file.attrs.update(status=status, status_reason=reason,
-                                   wall_time_s=_time.perf_counter() - self._started)
+                                   wall_time_s=_time.perf_counter() - self._started,
+                                   compile_time_s=self._compile_before + self.compile_time_s)
             self.file.flush()
             crash_point("finish_after_flush")
             self._write_xdmf()
