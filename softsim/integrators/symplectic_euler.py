@@ -38,7 +38,10 @@ from ..kernels.sync import fetch_add, load_acquire, spin_pause, yield_thread
 # microseconds on a passive OpenMP (``kernels.jit``); on the beam, 1 / 2 threads (M tet-steps/s,
 # medians of 5 timings, two alternating processes each): TBB 26 / 16 at 300 tets, 37 / 18-28 at 600, 46-49 / 29-55 at
 # 1k, 56 / 64-80 at 2.5k, 58 / 90 at 5k, 60 / 86-108 at 10k; passive OpenMP 59.6 / 48.8 at 10k,
-# 46.5 / 53.9 at 20k, 51.3 / 62.9 at 28k.
+# 46.5 / 53.9 at 20k, 51.3 / 62.9 at 28k.  Remeasured with the parts of a call in one region (TBB,
+# quiet host, 2 threads / 1, medians of 11 interleaved rounds, one process per list): 0.54-0.65 at
+# 200-630 tets, 0.88-1.08 at 1.2k-1.36k, 1.13 at 1.4k, 1.18-1.24 at 2.4k-2.5k, 1.37 at 4.5k,
+# 1.59 at 10k: two threads still pay from about 2k, so the threshold stays.
 # Values of a block's scratch buffer (``kernels.blocked.SCRATCH_ROWS``: the rows of a block, then
 # its rest data where the step computes them): a whole number of cache lines in either precision
 # (47 * 64 values), so that consecutive buffers in one array each start at a line.
