@@ -14,7 +14,7 @@ import pytest
 
 from softsim.errors import MeshError
 from softsim.mesh import build_mesh, checked_mesh
-from softsim.mesh.checks import boundary_faces
+from softsim.mesh.checks import PACKED_FACE_KEY_LIMIT, boundary_faces, face_groups
 from softsim.mesh.generate import structured_box
 from softsim.model import build_model, initial_state
 from softsim.simulation import prepare, simulate, step
@@ -396,3 +396,20 @@ def test_quality_summary_of_a_structured_cube_grid(scene):
     assert q["min_dihedral_deg"] == pytest.approx(math.degrees(math.acos(1 / math.sqrt(3))), abs=1e-9)
     assert q["max_dihedral_deg"] == pytest.approx(90.0, abs=1e-9)
     assert q["min_altitude_m"] == pytest.approx(a / math.sqrt(3), rel=1e-12)
+
+
+@pytest.mark.parametrize("offset", [0, PACKED_FACE_KEY_LIMIT])
+def test_face_groups_number_the_distinct_triples_as_unique_does(offset):
+    """``face_groups`` on sorted triples with repeats, indices small enough to pack into one key
+    (offset 0) and too large (the lexicographic sort): the same grouping and counts as
+    ``np.unique(axis=0)``, up to the numbering of the groups."""
+    rng = np.random.default_rng(3)
+    triples = np.sort(rng.integers(0, 40, size=(5000, 3)), axis=1) + offset
+    triples[::7, 2] = triples[::7, 1]                     # some repeated vertices too
+    inverse, counts = face_groups(triples[:, 0].copy(), triples[:, 1].copy(), triples[:, 2].copy())
+    _, unique_inverse, unique_counts = np.unique(triples, axis=0, return_inverse=True, return_counts=True)
+    unique_inverse = unique_inverse.ravel()
+    assert counts.sum() == len(triples) and sorted(counts) == sorted(unique_counts)
+    pairs = set(zip(inverse.tolist(), unique_inverse.tolist()))
+    assert len(pairs) == len(counts) == len(unique_counts)    # one group of each for the other's
+    assert np.array_equal(counts[inverse], unique_counts[unique_inverse])
