@@ -46,6 +46,7 @@ import numpy as np
 
 from ..kernels.forces import compute_tet_corner_forces, gather_vertex_forces
 from ..kernels.jit import njit
+from ..kernels.stiffness import element_stiffness_maxima as stiffness_maxima
 from ..materials.models import NEOHOOKEAN
 
 log = logging.getLogger("softsim")
@@ -278,30 +279,17 @@ def hooke_lame_parameters(model):
     return model.lam, model.mu
 
 
-def element_stiffness_maxima(model, x=None, chunk=65536):
+def element_stiffness_maxima(model, x=None):
     """Largest eigenvalue [N/m] of each tet's 12 x 12 stiffness ``K_e``, shape (tet_count,).
 
     ``K_e`` is linear elasticity (Hooke's law with the model's small-strain constants) on the tet's
     geometry at ``x`` (default rest): with corner gradients ``b_a`` and volume ``V``,
-    ``K_ab = V (lambda b_a b_b^T + mu (b_a . b_b) I + mu b_b b_a^T)``.
+    ``K_ab = V (lambda b_a b_b^T + mu (b_a . b_b) I + mu b_b b_a^T)``; its largest eigenvalue from
+    two 3 x 3 problems (``kernels.stiffness``), not LAPACK's on the assembled matrices.
     """
-    x = model.rest_points if x is None else np.asarray(x, dtype=np.float64)
+    x = model.rest_points if x is None else np.ascontiguousarray(x, dtype=np.float64)
     lam, mu = hooke_lame_parameters(model)
-    eye = np.eye(3)
-    out = np.empty(model.tet_count)
-    for start in range(0, model.tet_count, chunk):
-        X = x[model.tets[start:start + chunk]]
-        Ds = np.transpose(X[:, 1:] - X[:, :1], (0, 2, 1))
-        volume = np.abs(np.linalg.det(Ds)) / 6.0
-        G = np.linalg.inv(Ds)                                   # rows: gradients of corners 1..3
-        b = np.concatenate([-G.sum(axis=1, keepdims=True), G], axis=1)      # (k, 4, 3)
-        dots = np.einsum("kai,kbi->kab", b, b)
-        K = (lam * np.einsum("kai,kbj->kaibj", b, b)
-             + mu * dots[:, :, None, :, None] * eye[None, None, :, None, :]
-             + mu * np.einsum("kbi,kaj->kaibj", b, b))
-        K = K.reshape(-1, 12, 12) * volume[:, None, None]
-        out[start:start + chunk] = np.linalg.eigvalsh(K)[:, -1]
-    return out
+    return stiffness_maxima(x, model.tets, float(lam), float(mu))
 
 
 def element_frequency_bound(model, x=None):
