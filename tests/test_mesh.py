@@ -413,3 +413,22 @@ def test_face_groups_number_the_distinct_triples_as_unique_does(offset):
     pairs = set(zip(inverse.tolist(), unique_inverse.tolist()))
     assert len(pairs) == len(counts) == len(unique_counts)    # one group of each for the other's
     assert np.array_equal(counts[inverse], unique_counts[unique_inverse])
+
+
+def test_quality_summary_matches_numpy_on_a_distorted_mesh():
+    """The compiled pass (``kernels.tet_shape``) against NumPy on a randomly distorted box: the
+    dihedral range from ``dihedral_angles``, the altitude from 3 V / largest face area."""
+    from softsim.mesh.quality import dihedral_angles, face_normals, quality_summary
+
+    points, tets = structured_box((4.0, 3.0, 2.0), (0.0, 0.0, 0.0), 1.0)
+    points = points + 0.15 * np.random.default_rng(5).normal(size=points.shape)
+    summary = quality_summary(points, tets)
+    angles = dihedral_angles(points, tets)
+    X = points[tets]
+    volume = np.abs(np.linalg.det(X[:, 1:] - X[:, :1])) / 6.0
+    altitude = 3.0 * volume / np.linalg.norm(face_normals(points, tets), axis=2).max(axis=1)
+    assert summary["tets"] == len(tets) and summary["vertices"] == len(points)
+    assert summary["min_dihedral_deg"] == pytest.approx(angles.min(), rel=1e-12)
+    assert summary["max_dihedral_deg"] == pytest.approx(angles.max(), rel=1e-12)
+    assert summary["min_altitude_m"] == pytest.approx(altitude.min(), rel=1e-12)
+    assert 0.0 < angles.min() < 70.5 < angles.max() < 180.0            # distorted: not the regular tet's

@@ -47,6 +47,7 @@ import numpy as np
 from ..kernels.forces import compute_tet_corner_forces, gather_vertex_forces
 from ..kernels.jit import njit
 from ..kernels.stiffness import element_stiffness_maxima as stiffness_maxima
+from ..kernels.tet_shape import tet_shapes
 from ..materials.models import NEOHOOKEAN
 
 log = logging.getLogger("softsim")
@@ -82,15 +83,7 @@ class FrequencyEstimate:
 
 def _min_altitude(x, tets):
     """Smallest altitude [m] (3 V / largest face area) over the tets at positions ``x``."""
-    X = x[tets]
-    e1 = X[:, 1] - X[:, 0]
-    e2 = X[:, 2] - X[:, 0]
-    e3 = X[:, 3] - X[:, 0]
-    six_volume = np.abs(np.einsum("ij,ij->i", e1, np.cross(e2, e3)))
-    faces = (np.cross(e1, e2), np.cross(e2, e3), np.cross(e3, e1), np.cross(X[:, 2] - X[:, 1], X[:, 3] - X[:, 1]))
-    twice_area = np.max(np.stack([np.linalg.norm(f, axis=1) for f in faces]), axis=0)
-    h = six_volume / np.maximum(twice_area, 1e-300)
-    return float(h.min()) if h.size else 0.0
+    return float(tet_shapes(x, tets)[0].min()) if tets.shape[0] else 0.0
 
 
 class _SymmetricOperator:
