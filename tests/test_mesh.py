@@ -432,3 +432,13 @@ def test_quality_summary_matches_numpy_on_a_distorted_mesh():
     assert summary["max_dihedral_deg"] == pytest.approx(angles.max(), rel=1e-12)
     assert summary["min_altitude_m"] == pytest.approx(altitude.min(), rel=1e-12)
     assert 0.0 < angles.min() < 70.5 < angles.max() < 180.0            # distorted: not the regular tet's
+
+
+def test_a_tet_shrunk_to_a_point_has_altitude_zero():
+    """As in the NumPy version the stability operator used: 3 V / max(area, 1e-300), not NaN."""
+    from softsim.kernels.tet_shape import tet_shapes
+
+    x = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [2.0, 2.0, 2.0]])
+    tets = np.array([[0, 1, 2, 3], [4, 4, 4, 4]])
+    altitude = tet_shapes(x, tets)[0]
+    assert altitude[0] == pytest.approx(1.0 / np.sqrt(3.0), rel=1e-14) and altitude[1] == 0.0

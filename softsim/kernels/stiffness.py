@@ -26,7 +26,7 @@ from numba import prange
 
 from .deformation import edge_matrix
 from .jit import njit, njit_parallel
-from .mat3 import mat3_cofactor
+from .mat3 import mat3_cofactor, mat3_det
 from .polar3 import jacobi_sweep
 
 
@@ -53,8 +53,7 @@ def tet_stiffness_maximum(Ds, lam, mu):
     """``lambda_max`` [N/m] of the linear-elastic stiffness of the tet with edge matrix ``Ds``
     (9-tuple [m], ``deformation.edge_matrix``) and Lame parameters ``lam``, ``mu`` [Pa] (module
     docstring); inf for a flat tet (``det Ds = 0``: LAPACK's inverse refused it)."""
-    det = Ds[0] * (Ds[4] * Ds[8] - Ds[5] * Ds[7]) - Ds[1] * (Ds[3] * Ds[8] - Ds[5] * Ds[6]) \
-        + Ds[2] * (Ds[3] * Ds[7] - Ds[4] * Ds[6])
+    det = mat3_det(Ds)
     if det == 0.0:
         return np.inf
     cof = mat3_cofactor(Ds)

@@ -48,7 +48,7 @@ def tet_shape(x, tets, e):
             cos = min(1.0, max(-1.0, cos))
             cos_min = min(cos_min, cos)
             cos_max = max(cos_max, cos)
-    return 3.0 * volume / max(a0, a1, a2, a3), cos_min, cos_max
+    return 3.0 * volume / max(a0, a1, a2, a3, 1e-300), cos_min, cos_max      # a tet shrunk to a point: 0
 
 
 @njit_parallel
