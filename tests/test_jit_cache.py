@@ -1,5 +1,6 @@
 """Numba's on-disk cache: a second process runs the step loop without recompiling it."""
 
+import contextlib
 import subprocess
 import sys
 import textwrap
@@ -87,23 +88,30 @@ def test_compile_timer_counts_compiling_not_calling():
     assert compiled() == first
 
 
-def test_the_rate_leaves_out_what_compiling_took(tmp_path, monkeypatch):
-    """``RunSummary.tet_steps_per_s`` is over the wall time less the compile time (here a fixed
-    1 ms reported by a stand-in timer), which the summary gives apart."""
-    import contextlib
+@contextlib.contextmanager
+def one_millisecond():
+    """A stand-in for ``kernels.jit.compile_timer`` that reports 1 ms of compiling."""
+    yield lambda: 1e-3
 
+
+def prepared_with_a_fixed_compile_time(monkeypatch):
+    """A small prepared beam (two frames), ``simulate`` timing its compiling with ``one_millisecond``."""
     from softsim import simulation
     from softsim.config import parse_scene
 
-    @contextlib.contextmanager
-    def one_millisecond():
-        yield lambda: 1e-3
-
     monkeypatch.setattr(simulation, "compile_timer", one_millisecond)
-    prepared = simulation.prepare(parse_scene({
+    return simulation.prepare(parse_scene({
         "mesh": {"shape": "box", "size": [1, 0.2, 0.2], "element_size": 0.1, "structured": True},
         "material": {"model": "stvk", "youngs_modulus": 1e5, "poissons_ratio": 0.3, "density": 1000},
         "time": {"duration": 0.02}, "output": {"frame_interval": 0.01}}))
+
+
+def test_the_rate_leaves_out_what_compiling_took(tmp_path, monkeypatch):
+    """``RunSummary.tet_steps_per_s`` is over the wall time less the compile time (here a fixed
+    1 ms reported by a stand-in timer), which the summary gives apart."""
+    from softsim import simulation
+
+    prepared = prepared_with_a_fixed_compile_time(monkeypatch)
     summary = simulation.simulate(prepared, tmp_path / "run.h5")
     tet_steps = prepared.model.tet_count * prepared.plan.total_steps * prepared.substeps
     assert summary.compile_time_s == 1e-3 and summary.wall_time_s > 1e-3
@@ -114,23 +122,12 @@ def test_the_file_records_the_compile_time_and_the_sweep_rate_leaves_it_out(tmp_
     """The run file's ``compile_time_s`` is the compile timer's (a stand-in reporting 1 ms a
     session), summed over the sessions of a stopped and resumed run; the sweep summary's
     ``tet_steps_per_s`` divides by the wall time less it, as ``RunSummary`` does."""
-    import contextlib
-
     import h5py
 
     from softsim import simulation
-    from softsim.config import parse_scene
     from softsim.sweep.metrics import run_metrics
 
-    @contextlib.contextmanager
-    def one_millisecond():
-        yield lambda: 1e-3
-
-    monkeypatch.setattr(simulation, "compile_timer", one_millisecond)
-    prepared = simulation.prepare(parse_scene({
-        "mesh": {"shape": "box", "size": [1, 0.2, 0.2], "element_size": 0.1, "structured": True},
-        "material": {"model": "stvk", "youngs_modulus": 1e5, "poissons_ratio": 0.3, "density": 1000},
-        "time": {"duration": 0.02}, "output": {"frame_interval": 0.01}}))
+    prepared = prepared_with_a_fixed_compile_time(monkeypatch)
     path = tmp_path / "run.h5"
     first = simulation.simulate(prepared, path, should_stop=lambda: True)
     assert first.status == "interrupted"
