@@ -442,3 +442,19 @@ def test_a_tet_shrunk_to_a_point_has_altitude_zero():
     tets = np.array([[0, 1, 2, 3], [4, 4, 4, 4]])
     altitude = tet_shapes(x, tets)[0]
     assert altitude[0] == pytest.approx(1.0 / np.sqrt(3.0), rel=1e-14) and altitude[1] == 0.0
+
+
+def test_compiled_volumes_and_edge_lengths_match_numpy():
+    """``kernels.tet_shape.signed_volumes`` and ``mean_edge_lengths`` against NumPy's determinant
+    and norms on random tets, both orientations."""
+    from softsim.kernels.tet_shape import mean_edge_lengths, signed_volumes
+
+    rng = np.random.default_rng(11)
+    x = rng.normal(size=(400, 3))
+    tets = rng.permutation(400).reshape(100, 4)
+    X = x[tets]
+    volume = np.linalg.det(X[:, 1:] - X[:, :1]) / 6.0
+    edges = sum(np.linalg.norm(X[:, a] - X[:, b], axis=1) for a, b in ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)))
+    assert (volume > 0).any() and (volume < 0).any()
+    np.testing.assert_allclose(signed_volumes(x, tets), volume, rtol=1e-12, atol=0)
+    np.testing.assert_allclose(mean_edge_lengths(x, tets), edges / 6.0, rtol=1e-14, atol=0)

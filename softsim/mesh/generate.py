@@ -11,6 +11,7 @@ import threading
 import numpy as np
 
 from ..errors import MeshError, MissingDependencyError
+from ..kernels.rest_state import signed_volumes
 
 # Debian / Ubuntu packages providing the shared libraries the gmsh wheel loads even headless.
 GMSH_SYSTEM_PACKAGES = "libglu1-mesa libgl1 libxcursor1 libxinerama1 libxft2 libxrender1"
@@ -114,7 +115,6 @@ def structured_box(size, origin, element_size):
     local = np.where(odd, _FIVE_TETS_ODD[None], _FIVE_TETS_EVEN[None])        # (cells, 5, 4)
     tets = np.take_along_axis(corner_nodes[:, None, :], local, axis=2).reshape(-1, 4)
     # Fix the winding of the (mirrored) tets so every rest volume is positive.
-    X = points[tets]
-    negative = np.linalg.det(X[:, 1:] - X[:, :1]) < 0
+    negative = signed_volumes(points, tets) < 0
     tets[negative] = tets[negative][:, [0, 2, 1, 3]]
     return points, tets.astype(np.int64)
