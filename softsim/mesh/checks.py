@@ -11,6 +11,7 @@
 import numpy as np
 
 from ..errors import MeshError
+from ..kernels.faces import sorted_face_triples
 from ..kernels.rest_state import signed_volumes
 from ..kernels.tet_shape import mean_edge_lengths as tet_mean_edge_lengths
 
@@ -46,27 +47,16 @@ def check_not_degenerate(points, tets, source):
         )
 
 
-def oriented_faces(tets):
-    """All 4 * tet_count outward-wound faces, shape (4 m, 3), with the tet each belongs to (4 m,)."""
-    faces = tets[:, OUTWARD_FACES].reshape(-1, 3)
-    owner = np.repeat(np.arange(tets.shape[0]), 4)
-    return faces, owner
-
-
 def boundary_faces(tets, source="mesh", with_tets=False):
     """Outward-wound boundary faces (b, 3) of positively oriented ``tets``; refuses tangled meshes.
     with_tets: return ``(faces, face_tets)``, face_tets (b,) the tet of each face.
 
     A face is keyed by its sorted vertex triple; its winding parity tells from which side a tet
-    sees it.  An interior face must appear exactly twice with opposite parity.
+    sees it.  An interior face must appear exactly twice with opposite parity.  Face ``4 e + k`` is
+    face k (``OUTWARD_FACES``) of tet e (``kernels.faces.sorted_face_triples``).
     """
-    faces, owner = oriented_faces(tets)
-    a, b, c = faces[:, 0], faces[:, 1], faces[:, 2]
-    low = np.minimum(np.minimum(a, b), c)
-    high = np.maximum(np.maximum(a, b), c)
-    middle = a + b + c - low - high
-    # parity of the permutation that sorts the face (its inversions): even = same cyclic winding as sorted
-    parity = ((a > b).astype(np.int8) + (a > c) + (b > c)) % 2
+    tets = np.ascontiguousarray(tets, dtype=np.int64)
+    low, middle, high, parity = sorted_face_triples(tets)
     inverse, counts = face_groups(low, middle, high)
     if counts.max(initial=0) > 2:
         f = int(np.flatnonzero(counts[inverse] > 2)[0])
@@ -76,13 +66,15 @@ def boundary_faces(tets, source="mesh", with_tets=False):
     same_side = (counts == 2) & (parity_sum != 1)
     if same_side.any():
         f = int(np.flatnonzero(same_side[inverse])[0])
-        tets_of_face = owner[inverse == inverse[f]].tolist()
+        tets_of_face = (np.flatnonzero(inverse == inverse[f]) // 4).tolist()
         raise MeshError(
             f"{source}: tangled mesh: tetrahedra {tets_of_face} share face "
             f"{[int(low[f]), int(middle[f]), int(high[f])]} on the same side of it"
         )
-    boundary = counts[inverse] == 1
-    return (faces[boundary], owner[boundary]) if with_tets else faces[boundary]
+    boundary = np.flatnonzero(counts[inverse] == 1)
+    owner = boundary // 4
+    faces = tets[owner[:, None], OUTWARD_FACES[boundary % 4]]
+    return (faces, owner) if with_tets else faces
 
 
 # Vertex indices below this pack into one int64 sort key per face (three 21-bit fields).
