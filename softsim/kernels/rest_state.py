@@ -1,4 +1,5 @@
-"""Rest-state quantities, computed once before a run (NumPy, vectorised).
+"""Rest-state quantities, computed once before a run (NumPy, vectorised; the signed volumes in a
+compiled pass, ``tet_shape``).
 
 Sifakis & Barbic 2012, section 4.2: ``Dm = [X1-X0, X2-X0, X3-X0]``, ``W = |det Dm| / 6``;
 the step then only forms ``F = Ds Dm^-1``.
