@@ -56,7 +56,7 @@ def boundary_faces(tets, source="mesh", with_tets=False):
     face k (``OUTWARD_FACES``) of tet e (``kernels.faces.sorted_face_triples``).
     """
     tets = np.ascontiguousarray(tets, dtype=np.int64)
-    low, middle, high, parity = sorted_face_triples(tets)
+    low, middle, high, parity = sorted_face_triples(tets, OUTWARD_FACES)
     inverse, counts = face_groups(low, middle, high)
     if counts.max(initial=0) > 2:
         f = int(np.flatnonzero(counts[inverse] > 2)[0])
