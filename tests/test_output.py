@@ -1,5 +1,8 @@
 """The run's output files: HDF5 layout, XDMF read by VTK, user vertex order, failed and interrupted runs."""
 
+import subprocess
+import sys
+
 import h5py
 import meshio
 import numpy as np
@@ -389,3 +392,43 @@ def test_frames_written_counts_a_file_of_the_earlier_layout(tmp_path):
         f["state/velocities"] = np.zeros((3000, 3))
     with h5py.File(path) as f:
         assert frames_written(f) == 4
+
+
+
+# Run in a child: where the lock is left held, the parent would wait on it at its own exit.
+_READ_THEN_ANOTHER_THREAD = """
+import sys, threading, h5py
+from softsim.io.hdf5 import read_resume_state
+with h5py.File(sys.argv[1], "r") as f:
+    try:
+        read_resume_state(f)
+    except OSError as exc:
+        kept = exc                      # the traceback outlives the call, as in a caller that reports it
+    else:
+        sys.exit("read_resume_state did not raise")
+    done = threading.Event()
+    threading.Thread(target=lambda: (h5py.File(sys.argv[2], "r").close(), done.set()), daemon=True).start()
+    print("other thread done" if done.wait(10) else "other thread waited", flush=True)
+    sys.stdout.flush()
+    import os; os._exit(0)
+"""
+
+
+def test_a_read_that_fails_half_way_leaves_h5py_to_other_threads(full_run, tmp_path_factory):
+    """``read_resume_state`` on a slot whose data cannot be read raises OSError; while that
+    exception (and its traceback) lives, another thread must still get through h5py.  h5py's
+    ``group.items()`` iterator holds h5py's global lock between members, so iterating a slot with
+    it left the lock held: the next h5py call of any other thread (a Dask worker's event loop
+    freeing an h5py object, say) waited as long as the traceback lived."""
+    path = tmp_path_factory.mktemp("unreadable") / "unreadable.h5"    # outside tmp_path: unreadable on purpose
+    path.write_bytes(full_run[1].read_bytes())
+    with h5py.File(path, "a") as f:
+        for slot in f["state"]:
+            positions = f["state"][slot]["positions"]
+            shape, dtype = positions.shape, positions.dtype
+            del f["state"][slot]["positions"]
+            f["state"][slot].create_dataset("positions", shape, dtype,
+                                            external=[(str(path.parent / "missing.bin"), 0, h5py.h5f.UNLIMITED)])
+    child = subprocess.run([sys.executable, "-c", _READ_THEN_ANOTHER_THREAD, str(path), str(full_run[1])],
+                           capture_output=True, text=True, timeout=120)
+    assert child.stdout.strip() == "other thread done", (child.stdout, child.stderr)

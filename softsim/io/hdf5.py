@@ -235,7 +235,7 @@ class RunWriter:
     def _open_datasets(self):
         """Keep the handles a frame writes through (an h5py lookup by name costs ~50 us)."""
         self._rows = {dataset.name.removeprefix("/frames/"): dataset for dataset in _frame_datasets(self.file)}
-        self._slots = {name: dict(self.file["state"][name].items()) for name in STATE_SLOTS}
+        self._slots = {name: _members(self.file["state"][name]) for name in STATE_SLOTS}
         self._scalar_names = list(self._slots[STATE_SLOTS[0]]["scalars"].attrs["names"])
         self._array_names = {name for name in self._slots[STATE_SLOTS[0]] if name not in ("scalars", "header")}
 
@@ -378,6 +378,16 @@ def _compact(path):
         compact.unlink(missing_ok=True)
 
 
+def _members(group):
+    """``{name: member}`` of an h5py group, read by name.
+
+    Never ``group.items()`` / ``group.values()``: those iterators hold h5py's global lock between
+    members, so one left suspended (a read that raised half-way, its traceback kept) stops every
+    other thread's h5py call, object clean-up included: a Dask worker's event loop, say.
+    """
+    return {name: group[name] for name in group}
+
+
 def _frame_datasets(f):
     """Every dataset under ``frames/`` (one row per frame)."""
     found = []
@@ -433,7 +443,7 @@ def _newest_slot(f, check_data):
             continue
         state = {name: record[name].item() for name in ("frames", "step", "time", "wall_time_s")}
         if check_data:
-            arrays = {name: dataset[...] for name, dataset in slot.items() if name not in ("scalars", "header")}
+            arrays = {name: slot[name][...] for name in slot if name not in ("scalars", "header")}
             scalars = slot["scalars"][...]
             if int(record["data_crc"]) != state_checksum(arrays, scalars, state["step"]):
                 continue
@@ -457,7 +467,8 @@ def read_resume_state(f):
 def frames_written(f):
     """How many frames of an open run file are complete: rows ``0 .. frames_written(f) - 1`` of
     every ``frames/*`` dataset (a file from a run that ended is trimmed to exactly these)."""
-    if "state" not in f or not any(isinstance(slot, h5py.Group) and "header" in slot for slot in f["state"].values()):
+    if "state" not in f or not any(isinstance(slot, h5py.Group) and "header" in slot
+                                   for slot in _members(f["state"]).values()):
         return f["frames/time"].shape[0] if "frames/time" in f else 0     # written before the headers
     newest = _newest_slot(f, check_data=False)
     return 0 if newest is None else int(newest[1]["frames"])

@@ -31,7 +31,7 @@ class Results:
     def __init__(self, path, file):
         self.path = Path(path)
         self.file = file
-        self.attrs = {key: _plain(value) for key, value in file.attrs.items()}
+        self.attrs = {key: _plain(file.attrs[key]) for key in file.attrs}   # not .items(): see io.hdf5._members
         self.points = file["mesh/points"][:]
         self.tets = file["mesh/tets"][:]
         self.times = file["frames/time"][:frames_written(file)]
