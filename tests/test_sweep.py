@@ -199,10 +199,22 @@ def test_without_dask_the_error_names_the_extra(monkeypatch):
 # Sweeps on the cluster
 
 
-def test_workers_do_not_oversubscribe(client):
-    assert set(client.nthreads().values()) == {1}
-    threads = client.run(lambda: (os.environ.get("NUMBA_NUM_THREADS"), __import__("numba").config.NUMBA_NUM_THREADS))
-    assert set(threads.values()) == {("1", 1)}
+def _numba_threads():
+    import numba
+
+    return os.environ.get("NUMBA_NUM_THREADS"), numba.config.NUMBA_NUM_THREADS, numba.get_num_threads()
+
+
+def test_workers_do_not_oversubscribe_also_after_a_restart(client):
+    """One Dask thread and one Numba thread per worker, before and after the nanny restarts them
+    (it does when a worker stops answering); the client's process keeps its own environment."""
+    before = os.environ.get("NUMBA_NUM_THREADS")
+    for restart in (False, True):
+        if restart:
+            client.restart()
+        assert set(client.nthreads().values()) == {1}
+        assert set(client.run(_numba_threads).values()) == {("1", 1, 1)}
+        assert os.environ.get("NUMBA_NUM_THREADS") == before
 
 
 def test_sweep_reports_a_failed_run_reruns_skip_and_force(tmp_path, client):

@@ -303,31 +303,19 @@ def _sigint_ignored_in_children():
 def local_client(workers, numba_threads):
     """A ``distributed.Client`` on a new local cluster of ``workers`` single-threaded process workers.
 
-    Each worker gets ``NUMBA_NUM_THREADS=numba_threads`` in its environment before it starts (the
-    nanny's pre-spawn environment: numba reads it when first imported, which may be while the
-    worker process imports its parent's main module, before the nanny's ``env`` is applied).
-    One Dask thread per worker: Numba's ``workqueue`` threading layer aborts when two threads of
-    one process run parallel code at once.
+    Each worker gets ``NUMBA_NUM_THREADS=numba_threads`` in its environment and the preload
+    ``worker_setup``, which makes Numba read it again before its threads start.  One Dask thread
+    per worker: Numba's ``workqueue`` threading layer aborts when two threads of one process run
+    parallel code at once.
     """
     distributed = import_distributed()
-    import dask
 
-    threads = str(int(numba_threads))
-    saved = os.environ.get("NUMBA_NUM_THREADS")
-    os.environ["NUMBA_NUM_THREADS"] = threads     # pre-spawn values are read from os.environ first
-    try:
-        with dask.config.set({"distributed.nanny.pre-spawn-environ.NUMBA_NUM_THREADS": threads}), \
-                _sigint_ignored_in_children():
-            cluster = distributed.LocalCluster(
-                n_workers=workers, threads_per_worker=1, processes=True, silence_logs=logging.CRITICAL,
-                env={"NUMBA_NUM_THREADS": threads},
-                # No dashboard; the scheduler's small HTTP server on a free port, not 8787.
-                dashboard_address=":0", scheduler_kwargs={"dashboard": False})
-    finally:
-        if saved is None:
-            os.environ.pop("NUMBA_NUM_THREADS", None)
-        else:
-            os.environ["NUMBA_NUM_THREADS"] = saved
+    with _sigint_ignored_in_children():
+        cluster = distributed.LocalCluster(
+            n_workers=workers, threads_per_worker=1, processes=True, silence_logs=logging.CRITICAL,
+            env={"NUMBA_NUM_THREADS": str(int(numba_threads))}, preload=[f"{__package__}.worker_setup"],
+            # No dashboard; the scheduler's small HTTP server on a free port, not 8787.
+            dashboard_address=":0", scheduler_kwargs={"dashboard": False})
     try:
         with distributed.Client(cluster) as client:
             yield client
