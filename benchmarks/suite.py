@@ -142,13 +142,14 @@ def prefetch(sizes, seconds, repeats, threads):
     layout's ``prefetch``, first-use lists and ``rest_from_points``.  Comparing separate processes
     instead overstated the gains here: the same code ran from 75 to 111 M tet-steps/s at 1M from
     process to process."""
-    from softsim.kernels.blocked import PREFETCH_BLOCKS_AHEAD, prefetching
+    from softsim.kernels.blocked import PREFETCH_BLOCKS_AHEAD, build_block_layout, prefetching
 
     rows = []
     for target in sizes:
         prepared = prepared_beam(target)
         layout, n = prepared.model.blocks, prepared.model.node_count
-        stored = dataclasses.replace(layout, rest_from_points=False)
+        model = prepared.model
+        stored = build_block_layout(model.tets, model.Dm_inv, model.rest_volume, n, rest_from_points=False)
         variants = dict(zip(PREFETCH_VARIANTS, (
             prefetching(stored, n, None),
             prefetching(stored, n, PREFETCH_BLOCKS_AHEAD, vertex_rows=False),

@@ -41,9 +41,9 @@ class Body:
         self.node_count, self.tet_count = len(self.X), len(self.tets)
         self.Dm_inv, self.V0 = rest_state(self.X, self.tets)
         self.csr_offsets, self.csr_slots = vertex_tet_csr(self.tets, self.node_count)
-        self.blocks = build_block_layout(self.tets, self.Dm_inv, self.V0, self.node_count, scatter)
-        if rest_from_points:          # what a mesh above REST_FROM_POINTS_BYTES gets
-            self.blocks = dataclasses.replace(self.blocks, rest_from_points=True)
+        # rest_from_points: what a mesh above REST_FROM_POINTS_BYTES gets, no rest data stored
+        self.blocks = build_block_layout(self.tets, self.Dm_inv, self.V0, self.node_count, scatter,
+                                         rest_from_points=rest_from_points)
 
     def forces(self, x, model, lam, mu, inv_mass=None, gravity=(0.0, 0.0, 0.0), external_accel=None, chunks=None):
         """The elastic forces at ``x`` [N] from one step of ``advance`` with ``dt = 1`` and ``v = 0``
@@ -90,7 +90,7 @@ def test_rest_data_computed_in_the_step_give_the_stored_forces(model, scatter):
     lam, mu = model_lame_parameters(model, E_PA, NU)
     computed = Body(points, tets, scatter, rest_from_points=True)
     assert step_arguments(computed, work_buffer(computed))[0][11] is not None
-    computed.blocks.rest[...] = np.nan               # the step must not read them
+    assert computed.blocks.rest.shape[0] == 0         # none stored: the step cannot read them
     f = computed.forces(x, model, lam, mu)
     f_naive = naive.elastic_forces(x, computed.X, computed.tets, model, lam, mu)
     np.testing.assert_allclose(f, f_naive, rtol=0, atol=1e-11 * np.abs(f_naive).max())
@@ -279,9 +279,22 @@ def test_only_float64_meshes_whose_rest_data_outgrow_the_threshold_compute_them_
     rest_bytes = block_layout(tets, Dm_inv, V0)[1].nbytes
     for threshold, expected in ((rest_bytes - 1, True), (rest_bytes, False)):
         monkeypatch.setattr(blocked, "REST_FROM_POINTS_BYTES", threshold)
-        assert build_block_layout(tets, Dm_inv, V0, len(points)).rest_from_points is expected
+        layout = build_block_layout(tets, Dm_inv, V0, len(points))
+        assert layout.rest_from_points is expected
+        assert layout.rest.shape[0] == (0 if expected else layout.tets.shape[0])     # stored only where read
+        assert layout.rest.dtype == np.float64
     monkeypatch.setattr(blocked, "REST_FROM_POINTS_BYTES", 0)
     assert not build_block_layout(tets, Dm_inv, V0, len(points), dtype=np.float32).rest_from_points
+    stored = build_block_layout(tets, Dm_inv, V0, len(points), rest_from_points=False)    # asked for: stored
+    assert not stored.rest_from_points and stored.rest.nbytes == rest_bytes
+
+
+def test_the_step_refuses_a_layout_that_neither_holds_nor_computes_its_rest_data():
+    points, tets, _ = mesh((4, 3, 3))
+    body = Body(points, tets, "colour", rest_from_points=True)
+    body.blocks = dataclasses.replace(body.blocks, rest_from_points=False)
+    with pytest.raises(ValueError, match="no rest data"):
+        step_arguments(body, work_buffer(body))
 
 
 def test_prefetching_sets_the_distance_and_lists_the_first_uses_only_with_vertex_rows():

@@ -10,6 +10,8 @@ import numpy as np
 import pytest
 
 from softsim.errors import ConfigError, SimulationError
+from softsim.kernels import blocked
+from softsim.kernels.blocked import build_block_layout
 from softsim.integrators.stability import exact_stable_step
 from softsim.simulation import prepare, simulate
 
@@ -31,6 +33,29 @@ def crushed_cube(scene, model, duration=0.5):
                  fixed=[{"min": [-1, -1, -1e-6], "max": [1, 1, 1e-6]},
                         {"min": [-1, -1, 0.1 - 1e-6], "max": [1, 1, 1], "velocity": [0, 0, -0.09 / duration]}],
                  time={"duration": duration}, output={"frame_interval": duration / 20})
+
+
+def test_a_layout_without_rest_data_runs_as_one_with_them(scene, tmp_path, monkeypatch):
+    """Above ``REST_FROM_POINTS_BYTES`` of rest data the layout stores none: the step and the
+    guard's element checks compute them from the rest positions.  The crushed cube, forced there,
+    re-checks its step as often and ends where it ends with them stored, to round-off."""
+    s = crushed_cube(scene, "neohookean", duration=0.1)
+    s = s.model_copy(update={"time": s.time.model_copy(update={
+        "dt": 0.9 * exact_stable_step(prepare(s).model), "dt_policy": "substep"})})
+    runs = {}
+    for computing in (False, True):
+        if computing:
+            monkeypatch.setattr(blocked, "REST_FROM_POINTS_BYTES", 0)
+        prepared = prepare(s)
+        assert prepared.model.blocks.rest_from_points is computing
+        assert (prepared.model.blocks.rest.shape[0] == 0) is computing
+        summary = simulate(prepared, tmp_path / f"{computing}.h5")
+        with h5py.File(tmp_path / f"{computing}.h5") as f:
+            assert f.attrs["status"] == "complete"
+            runs[computing] = summary, f["frames/points"][-1], f["frames/time"][:]
+    (stored, x_stored, t_stored), (computed, x_computed, t_computed) = runs[False], runs[True]
+    assert computed.frames == stored.frames and np.array_equal(t_computed, t_stored)
+    np.testing.assert_allclose(x_computed, x_stored, rtol=0, atol=1e-12)
 
 
 @pytest.mark.parametrize("model, rest_step_survives", [("neohookean", False), ("corotated", True)])
@@ -165,10 +190,21 @@ def test_element_checks_tell_whether_any_tet_moved_as_the_largest_change_does_an
     element_volume_ratios_and_stretches(x_rest, model.tets, model.Dm_inv, J_rest, stretch_rest, np.ones(m),
                                         np.ones(m), limit)
 
+    # the layout of a mesh above REST_FROM_POINTS_BYTES: no rest data stored, the pass computes them
+    computing = build_block_layout(model.tets, model.Dm_inv, model.rest_volume, model.node_count,
+                                   rest_from_points=True)
+    assert computing.rest.shape[0] == 0
+
     def both_say(x, J_seen, stretch_seen):
+        computed = block_volume_ratios_and_stretches(x, computing.tets, computing.rest, m, computing.whole_rows,
+                                                     J, stretch, J_seen, stretch_seen, limit, model.rest_points)
+        J_computed, stretch_computed = J.copy(), stretch.copy()
         blocked = block_volume_ratios_and_stretches(x, model.blocks.tets, model.blocks.rest, m, model.blocks.whole_rows,
                                                     J, stretch, J_seen, stretch_seen, limit)
         J_blocked, stretch_blocked = J.copy(), stretch.copy()
+        np.testing.assert_allclose(J_computed, J_blocked, rtol=1e-12, atol=1e-14)
+        np.testing.assert_allclose(stretch_computed, stretch_blocked, rtol=1e-12)
+        assert computed == blocked
         per_tet = element_volume_ratios_and_stretches(x, model.tets, model.Dm_inv, J, stretch, J_seen, stretch_seen,
                                                       limit)
         np.testing.assert_allclose(J_blocked, J, rtol=1e-12)

@@ -205,7 +205,9 @@ class BlockLayout:
     whole_rows (block_count,) bool: block b does not use the last vertex, so its gather may load
     every corner's row as four values (``gather_corners``);
     rest_from_points: the step computes each block's rest data from the rest positions instead of
-    reading ``rest`` (float64 only, above ``REST_FROM_POINTS_BYTES``; ``rest_from_corners_block``).
+    reading ``rest`` (float64 only, above ``REST_FROM_POINTS_BYTES``; ``rest_from_corners_block``);
+    ``build_block_layout`` then stores none (``rest`` has no blocks), and so do the guard's element
+    checks (``kernels.element_checks``).
     """
 
     tets: np.ndarray
@@ -228,11 +230,17 @@ class BlockLayout:
         return self.colour_offsets.shape[0] - 1
 
 
-def build_block_layout(tets, Dm_inv, rest_volume, node_count, scatter=None, slabs=SLABS, dtype=np.float64):
+def build_block_layout(tets, Dm_inv, rest_volume, node_count, scatter=None, slabs=SLABS, dtype=np.float64,
+                       rest_from_points=None):
     """The ``BlockLayout`` of a mesh numbered by ``mesh.reorder.renumber_for_locality`` with as many
     ``slabs``; ``scatter``: ``"colour"`` (None: the default) or ``"csr"``; ``dtype`` of the rest data:
-    the precision of the step (float64 or float32)."""
-    block_tets, block_rest = block_layout(tets, Dm_inv, rest_volume, dtype)
+    the precision of the step (float64 or float32).  rest_from_points: whether the step computes
+    the rest data from the rest positions, the layout then holding none (None: above
+    ``REST_FROM_POINTS_BYTES`` of float64 rest data; True / False for tests and benchmarks)."""
+    rest_bytes = -(-tets.shape[0] // BLOCK) * BLOCK * REST_ROWS * np.dtype(dtype).itemsize
+    if rest_from_points is None:
+        rest_from_points = np.dtype(dtype) == np.float64 and rest_bytes > REST_FROM_POINTS_BYTES
+    block_tets, block_rest = block_layout(tets, Dm_inv, rest_volume, dtype, with_rest=not rest_from_points)
     part_offsets = slab_parts(block_tets, node_count, slabs)
     colour_offsets, colour_parts = part_colouring(block_tets, tets.shape[0], node_count, part_offsets)
     run_offsets, owned_runs = owned_vertex_runs(*vertex_owners(block_tets, tets.shape[0], node_count, part_offsets,
@@ -244,11 +252,10 @@ def build_block_layout(tets, Dm_inv, rest_volume, node_count, scatter=None, slab
                          colour_offsets=colour_offsets, colour_parts=colour_parts, run_offsets=run_offsets,
                          owned_runs=owned_runs, scatter=scatter, prefetch=None, first_offsets=first_offsets,
                          first_vertices=first_vertices,
-                         whole_rows=block_tets.max(axis=(1, 2), initial=0) < node_count - 1)
-    if block_rest.nbytes > PREFETCH_FROM_BYTES:
+                         whole_rows=block_tets.max(axis=(1, 2), initial=0) < node_count - 1,
+                         rest_from_points=bool(rest_from_points))
+    if rest_bytes > PREFETCH_FROM_BYTES:
         layout = prefetching(layout, node_count, PREFETCH_BLOCKS_AHEAD)
-    if np.dtype(dtype) == np.float64 and block_rest.nbytes > REST_FROM_POINTS_BYTES:
-        layout = dataclasses.replace(layout, rest_from_points=True)
     return layout
 
 
@@ -300,13 +307,14 @@ def first_uses(block_tets, part_offsets, node_count):
     return first_offsets, vertex[order].astype(np.uint32)
 
 
-def block_layout(tets, Dm_inv, rest_volume, dtype=np.float64):
+def block_layout(tets, Dm_inv, rest_volume, dtype=np.float64, with_rest=True):
     """``(block_tets, block_rest)``: the tets in blocks of ``BLOCK``, structure of arrays.
 
     block_tets: (block_count, 4, BLOCK) uint32 corner vertex indices; block_rest: (block_count,
     BLOCK // lanes, 10, lanes) ``dtype`` (rounded from float64; ``lanes = lanes_per_group(dtype)``),
     rows ``Dm^-1`` (9, row-major) [1/m] and ``V0`` [m^3].  Tet ``e`` is lane ``j = e % BLOCK`` of block ``e // BLOCK``, in block_rest
     ``[e // BLOCK, j // lanes, :, j % lanes]``; padding lanes repeat the block's first tet with V0 = 0.
+    Without ``with_rest``, block_rest has no blocks (shape (0, BLOCK // lanes, 10, lanes)).
     """
     m = tets.shape[0]
     block_count = -(-m // BLOCK)
@@ -314,10 +322,12 @@ def block_layout(tets, Dm_inv, rest_volume, dtype=np.float64):
     lane_tet = np.arange(padded)
     lane_tet = np.where(lane_tet < m, lane_tet, (lane_tet // BLOCK) * BLOCK)
     block_tets = np.ascontiguousarray(tets[lane_tet].reshape(block_count, BLOCK, 4).transpose(0, 2, 1))
+    lanes = lanes_per_group(dtype)
+    if not with_rest:
+        return block_tets.astype(np.uint32), cache_aligned_empty((0, BLOCK // lanes, REST_ROWS, lanes), dtype)
     rest = np.empty((padded, 10))
     rest[:, :9] = Dm_inv.reshape(m, 9)[lane_tet]
     rest[:, 9] = np.where(np.arange(padded) < m, rest_volume[lane_tet], 0.0)
-    lanes = lanes_per_group(dtype)
     block_rest = cache_aligned_empty((block_count, BLOCK // lanes, REST_ROWS, lanes), dtype)
     block_rest[...] = rest.reshape(block_count, BLOCK // lanes, lanes, REST_ROWS).transpose(0, 1, 3, 2)
     return block_tets.astype(np.uint32), block_rest

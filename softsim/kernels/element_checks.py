@@ -9,7 +9,8 @@ they read sat in the other core's cache."""
 import numpy as np
 from numba import prange
 
-from .blocked import BLOCK, ROW_J, ROW_STRETCH, cache_aligned_scratch, gather_corners, volume_ratio_and_stretch_block
+from .blocked import (BLOCK, ROW_F, ROW_J, ROW_STRETCH, SCRATCH_ROWS, cache_aligned_scratch, computed_rest, gather_corners,
+                      rest_from_corners_block, volume_ratio_and_stretch_block)
 from .deformation import deformation_gradient, edge_matrix
 from .energy import CHUNKS        # fixed ranges of blocks, a scratch buffer each
 from .jit import njit_inline, njit_parallel
@@ -44,22 +45,32 @@ def element_volume_ratios_and_stretches(x, tets, Dm_inv, J, stretch, J_seen, str
 
 @njit_parallel
 def block_volume_ratios_and_stretches(x, block_tets, block_rest, tet_count, whole_rows, J, stretch,
-                                      J_seen, stretch_seen, limit):
+                                      J_seen, stretch_seen, limit, rest_points=None):
     """``element_volume_ratios_and_stretches`` over the blocks of a ``kernels.blocked.BlockLayout``
     with float64 rest data (``block_tets``, ``block_rest``, ``tet_count``, ``whole_rows``; its tets
     in the model's order): the corners gathered into a scratch buffer, F, J and the stretch in packed
     SIMD lanes, and whether any tet moved in the same pass.  At 100k tets, 2 threads: 0.35-0.41 ms
     against 0.7-1.3 ms tet by tet (a guard check every 32 steps); inside a run, the test of whether
-    any tet moved took 0.27 ms more as a pass of its own over the four arrays."""
+    any tet moved took 0.27 ms more as a pass of its own over the four arrays.
+    rest_points: None, or the rest positions (n, 3) [m], from which each block's rest data are
+    computed as the step does (``BlockLayout.rest_from_points``: ``block_rest`` is then not read).
+    """
     blocks = block_tets.shape[0]
     chunks = min(CHUNKS, blocks)
     moved_in = np.zeros(chunks, np.bool_)
     for c in prange(chunks):
-        buf = cache_aligned_scratch((ROW_STRETCH + 1) * BLOCK, x)   # the corners (the dtype of x), J and the stretch
+        # the corners (the dtype of x), J and the stretch; the computed rest data after them
+        buf = cache_aligned_scratch((SCRATCH_ROWS if rest_points is not None else ROW_STRETCH + 1) * BLOCK, x)
         any_moved = False
         for b in range(c * blocks // chunks, (c + 1) * blocks // chunks):
-            gather_corners(x, block_tets, b, buf, whole_rows[b])
-            volume_ratio_and_stretch_block(block_rest[b], buf)
+            if rest_points is not None:
+                gather_corners(rest_points, block_tets, b, buf, whole_rows[b], ROW_F)
+                rest_from_corners_block(buf)
+                gather_corners(x, block_tets, b, buf, whole_rows[b])
+                volume_ratio_and_stretch_block(computed_rest(buf), buf)
+            else:
+                gather_corners(x, block_tets, b, buf, whole_rows[b])
+                volume_ratio_and_stretch_block(block_rest[b], buf)
             e0 = b * BLOCK
             for j in range(min(BLOCK, tet_count - e0)):
                 J[e0 + j] = buf[ROW_J * BLOCK + j]

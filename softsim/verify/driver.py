@@ -127,8 +127,10 @@ def with_rest_state(model, Dm_inv=None, rest_volume=None):
     if getattr(model, "blocks", None) is not None:
         from ..kernels.blocked import build_block_layout
 
+        # stored whatever the mesh's size: computed from the rest positions, they would not be these
         changes["blocks"] = build_block_layout(model.tets, Dm_inv, rest_volume, model.node_count,
-                                               scatter=model.blocks.scatter, dtype=model.blocks.rest.dtype)
+                                               scatter=model.blocks.scatter, dtype=model.blocks.rest.dtype,
+                                               rest_from_points=False)
     return replace(model, **changes)
 
 
