@@ -14,7 +14,7 @@ from .kernels.blocked import build_block_layout, faces_by_part
 from .kernels.rest_state import lumped_masses, rest_state, vertex_tet_csr
 from .materials.models import MODEL_IDS, model_lame_parameters
 from .mesh import TetMesh
-from .mesh.checks import boundary_faces
+from .mesh.checks import boundary_faces, faces_of_slots, renumbered_face_slots
 from .mesh.reorder import renumber_for_locality
 
 AXIS_INDEX = {"x": 0, "y": 1, "z": 2}
@@ -145,7 +145,10 @@ def build_model(scene, mesh):
     lam, mu = model_lame_parameters(material.model, material.youngs_modulus, material.poissons_ratio)
     offsets, slots = vertex_tet_csr(tets, n)
 
-    faces, face_tets = boundary_faces(tets, mesh.source, with_tets=True)
+    if mesh.boundary_slots is not None:      # found when the mesh was checked
+        faces, face_tets = faces_of_slots(tets, renumbered_face_slots(mesh.boundary_slots, tet_order), with_tets=True)
+    else:
+        faces, face_tets = boundary_faces(tets, mesh.source, with_tets=True)
     areas = face_areas(points, faces)
     boundary_area = np.zeros(n)
     np.add.at(boundary_area, faces.ravel(), np.repeat(areas / 3.0, 3))

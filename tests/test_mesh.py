@@ -3,6 +3,7 @@
 Geometric expectations (volumes, areas, angles) are computed here from the shapes' formulas.
 """
 
+import dataclasses
 import logging
 import math
 import re
@@ -359,6 +360,25 @@ def test_renumbering_keeps_the_users_order_and_improves_locality(scene):
     assert mean_index_gap(model.tets) < 0.25 * mean_index_gap(mesh.tets)
     first_vertex = model.tets.min(axis=1)
     assert (np.diff(first_vertex) >= 0).all()
+
+
+@pytest.mark.parametrize("shuffled", [True, False])
+def test_the_model_takes_the_boundary_the_mesh_check_found_renumbered(scene, shuffled):
+    """The boundary faces found when the mesh was checked, renumbered with the tets, are the model's:
+    the same faces, in the same order, with the same tets, as finding them again on its tets."""
+    points, tets = shuffled_box(cells=8) if shuffled else structured_box((0.3, 0.1, 0.1), (0, 0, 0), 0.05)
+    mesh = checked_mesh(points, tets, "box")
+    assert mesh.boundary_slots is not None
+    model = build_model(scene(), mesh)
+    faces, face_tets = boundary_faces(model.tets, with_tets=True)
+    np.testing.assert_array_equal(model.boundary_faces, faces)
+    again = build_model(scene(), dataclasses.replace(mesh, boundary_slots=None))     # found on the model's tets
+    np.testing.assert_array_equal(again.boundary_faces, faces)
+    np.testing.assert_array_equal(again.boundary_area, model.boundary_area)
+    # each part's faces (the ground's contact areas) come from the faces' tets
+    np.testing.assert_array_equal(again.part_face_offsets, model.part_face_offsets)
+    np.testing.assert_array_equal(again.part_faces, model.part_faces)
+    assert again.part_faces.shape == (len(face_tets), 3)
 
 
 def test_output_file_uses_the_users_vertex_numbers(scene, tmp_path):

@@ -3,11 +3,12 @@
 import logging
 import math
 from dataclasses import dataclass
+from typing import Optional
 
 import numpy as np
 
 from ..errors import MeshError
-from .checks import boundary_faces, check_not_degenerate, orient_positively
+from .checks import boundary_face_slots, check_not_degenerate, orient_positively
 from .quality import format_quality, quality_summary
 
 log = logging.getLogger("softsim")
@@ -20,11 +21,14 @@ class TetMesh:
     points: (node_count, 3) rest positions [m], float64.
     tets: (tet_count, 4) vertex indices, int64, every rest volume positive.
     source: where it came from (shape name or file path), for messages.
+    boundary_slots: None, or the boundary faces as face slots ``4 e + k`` of ``tets``
+    (``checks.boundary_face_slots``), found when the mesh was checked: the model reuses them.
     """
 
     points: np.ndarray
     tets: np.ndarray
     source: str
+    boundary_slots: Optional[np.ndarray] = None
 
     @property
     def node_count(self):
@@ -119,8 +123,8 @@ def checked_mesh(points, tets, source):
     tets, reversed_count = orient_positively(points, tets)
     if reversed_count:
         log.warning("%s: re-oriented %d tetrahedra with reversed winding (negative volume)", source, reversed_count)
-    boundary_faces(tets, source)   # refuses tangled meshes
-    return TetMesh(points=points, tets=tets, source=source)
+    boundary = boundary_face_slots(tets, source)   # refuses tangled meshes
+    return TetMesh(points=points, tets=tets, source=source, boundary_slots=boundary)
 
 
 def build_mesh(spec):

@@ -49,11 +49,17 @@ def check_not_degenerate(points, tets, source):
 
 def boundary_faces(tets, source="mesh", with_tets=False):
     """Outward-wound boundary faces (b, 3) of positively oriented ``tets``; refuses tangled meshes.
-    with_tets: return ``(faces, face_tets)``, face_tets (b,) the tet of each face.
+    with_tets: return ``(faces, face_tets)``, face_tets (b,) the tet of each face."""
+    return faces_of_slots(tets, boundary_face_slots(tets, source), with_tets)
+
+
+def boundary_face_slots(tets, source="mesh"):
+    """The boundary faces of positively oriented ``tets`` as face slots ``4 e + k`` (face k,
+    ``OUTWARD_FACES``, of tet e), increasing; refuses tangled meshes.
 
     A face is keyed by its sorted vertex triple; its winding parity tells from which side a tet
     sees it.  An interior face must appear exactly twice with opposite parity.  Face ``4 e + k`` is
-    face k (``OUTWARD_FACES``) of tet e (``kernels.faces.sorted_face_triples``).
+    face k of tet e (``kernels.faces.sorted_face_triples``).
     """
     tets = np.ascontiguousarray(tets, dtype=np.int64)
     low, middle, high, parity = sorted_face_triples(tets, OUTWARD_FACES)
@@ -71,10 +77,24 @@ def boundary_faces(tets, source="mesh", with_tets=False):
             f"{source}: tangled mesh: tetrahedra {tets_of_face} share face "
             f"{[int(low[f]), int(middle[f]), int(high[f])]} on the same side of it"
         )
-    boundary = np.flatnonzero(counts[inverse] == 1)
-    owner = boundary // 4
-    faces = tets[owner[:, None], OUTWARD_FACES[boundary % 4]]
+    return np.flatnonzero(counts[inverse] == 1)
+
+
+def faces_of_slots(tets, slots, with_tets=False):
+    """The outward-wound faces (b, 3) of the face slots ``4 e + k`` (``boundary_face_slots``) of
+    ``tets``; with_tets: ``(faces, face_tets)``."""
+    owner = slots // 4
+    faces = np.asarray(tets)[owner[:, None], OUTWARD_FACES[slots % 4]]
     return (faces, owner) if with_tets else faces
+
+
+def renumbered_face_slots(slots, tet_order):
+    """Face slots of a mesh whose tets were reordered, new tet ``e`` being old tet ``tet_order[e]``
+    (``mesh.reorder.renumber_for_locality``: the corners of each tet keep their order), increasing:
+    what ``boundary_face_slots`` gives for the reordered tets."""
+    new_tet = np.empty_like(tet_order)
+    new_tet[tet_order] = np.arange(tet_order.size)
+    return np.sort(4 * new_tet[slots // 4] + slots % 4)
 
 
 # Vertex indices below this pack into one int64 sort key per face (three 21-bit fields).
