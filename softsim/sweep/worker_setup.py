@@ -1,8 +1,8 @@
 """Dask worker preload of ``local_client``'s workers: make their ``NUMBA_NUM_THREADS`` count.
 
 The nanny puts ``NUMBA_NUM_THREADS`` into a worker's environment (its ``env``) only after the new
-process has imported its parent's main module, and the ``softsim`` command's imports Numba, which
-then read the count it would launch threads with.  Reading Numba's configuration again here, when
+process has imported its parent's main module; the ``softsim`` command's main module imports
+Numba, which reads the thread count it will launch with when imported.  Reading Numba's configuration again here, when
 the worker starts and before anything has launched Numba's threads, makes the worker's own value
 the one they launch with.
 
