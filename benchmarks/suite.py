@@ -147,8 +147,8 @@ def prefetch(sizes, seconds, repeats, threads):
     rows = []
     for target in sizes:
         prepared = prepared_beam(target)
-        layout, n = prepared.model.blocks, prepared.model.node_count
         model = prepared.model
+        layout, n = model.blocks, model.node_count
         stored = build_block_layout(model.tets, model.Dm_inv, model.rest_volume, n, rest_from_points=False)
         variants = dict(zip(PREFETCH_VARIANTS, (
             prefetching(stored, n, None),

@@ -394,7 +394,6 @@ def test_frames_written_counts_a_file_of_the_earlier_layout(tmp_path):
         assert frames_written(f) == 4
 
 
-
 # Run in a child: where the lock is left held, the parent would wait on it at its own exit.
 _READ_THEN_ANOTHER_THREAD = """
 import sys, threading, h5py
@@ -409,8 +408,7 @@ with h5py.File(sys.argv[1], "r") as f:
     done = threading.Event()
     threading.Thread(target=lambda: (h5py.File(sys.argv[2], "r").close(), done.set()), daemon=True).start()
     print("other thread done" if done.wait(10) else "other thread waited", flush=True)
-    sys.stdout.flush()
-    import os; os._exit(0)
+    import os; os._exit(0)          # not a normal exit, which could wait on the lock the other thread waits for
 """
 
 

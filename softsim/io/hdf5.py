@@ -467,8 +467,8 @@ def read_resume_state(f):
 def frames_written(f):
     """How many frames of an open run file are complete: rows ``0 .. frames_written(f) - 1`` of
     every ``frames/*`` dataset (a file from a run that ended is trimmed to exactly these)."""
-    if "state" not in f or not any(isinstance(slot, h5py.Group) and "header" in slot
-                                   for slot in _members(f["state"]).values()):
+    if "state" not in f or not any(isinstance(f["state"][name], h5py.Group) and "header" in f["state"][name]
+                                   for name in f["state"]):
         return f["frames/time"].shape[0] if "frames/time" in f else 0     # written before the headers
     newest = _newest_slot(f, check_data=False)
     return 0 if newest is None else int(newest[1]["frames"])

@@ -863,17 +863,26 @@ def block_forces(x, block_tets, block_rest, b, model, lam, mu, buf, rest, prefet
     the block's rest data are computed into ``buf`` (``rest_from_corners_block``) instead of read
     from ``block_rest`` (``BlockLayout.rest_from_points``).
     """
+    block = gathered_block(x, block_tets, block_rest, b, buf, whole_rows, rest_points)
+    if rest_points is not None or prefetch is None:
+        model_forces(block, buf, model, lam, mu, rest, None)
+    else:
+        model_forces(block, buf, model, lam, mu, rest, block_rest[block_ahead(b, prefetch, block_rest.shape[0])])
+
+
+@njit_inline
+def gathered_block(x, block_tets, block_rest, b, buf, whole_rows, rest_points):
+    """Gather block ``b``'s corners of ``x`` into ``buf`` (``gather_corners``) and return its rest
+    rows: ``block_rest[b]``, or with ``rest_points`` (n, 3) [m] those computed from its corners'
+    rest positions into ``buf`` (``rest_from_corners_block``, ``computed_rest``; ``buf`` then
+    ``SCRATCH_ROWS * BLOCK`` values).  The step's forces and the guard's element checks both."""
     if rest_points is not None:
         gather_corners(rest_points, block_tets, b, buf, whole_rows, ROW_F)
         rest_from_corners_block(buf)
         gather_corners(x, block_tets, b, buf, whole_rows)
-        model_forces(computed_rest(buf), buf, model, lam, mu, rest, None)
-        return
+        return computed_rest(buf)
     gather_corners(x, block_tets, b, buf, whole_rows)
-    if prefetch is None:
-        model_forces(block_rest[b], buf, model, lam, mu, rest, None)
-    else:
-        model_forces(block_rest[b], buf, model, lam, mu, rest, block_rest[block_ahead(b, prefetch, block_rest.shape[0])])
+    return block_rest[b]
 
 
 @njit

@@ -9,8 +9,8 @@ they read sat in the other core's cache."""
 import numpy as np
 from numba import prange
 
-from .blocked import (BLOCK, ROW_F, ROW_J, ROW_STRETCH, SCRATCH_ROWS, cache_aligned_scratch, computed_rest, gather_corners,
-                      rest_from_corners_block, volume_ratio_and_stretch_block)
+from .blocked import (BLOCK, ROW_J, ROW_STRETCH, SCRATCH_ROWS, cache_aligned_scratch, gathered_block,
+                      volume_ratio_and_stretch_block)
 from .deformation import deformation_gradient, edge_matrix
 from .energy import CHUNKS        # fixed ranges of blocks, a scratch buffer each
 from .jit import njit_inline, njit_parallel
@@ -63,14 +63,8 @@ def block_volume_ratios_and_stretches(x, block_tets, block_rest, tet_count, whol
         buf = cache_aligned_scratch((SCRATCH_ROWS if rest_points is not None else ROW_STRETCH + 1) * BLOCK, x)
         any_moved = False
         for b in range(c * blocks // chunks, (c + 1) * blocks // chunks):
-            if rest_points is not None:
-                gather_corners(rest_points, block_tets, b, buf, whole_rows[b], ROW_F)
-                rest_from_corners_block(buf)
-                gather_corners(x, block_tets, b, buf, whole_rows[b])
-                volume_ratio_and_stretch_block(computed_rest(buf), buf)
-            else:
-                gather_corners(x, block_tets, b, buf, whole_rows[b])
-                volume_ratio_and_stretch_block(block_rest[b], buf)
+            volume_ratio_and_stretch_block(gathered_block(x, block_tets, block_rest, b, buf, whole_rows[b], rest_points),
+                                           buf)
             e0 = b * BLOCK
             for j in range(min(BLOCK, tet_count - e0)):
                 J[e0 + j] = buf[ROW_J * BLOCK + j]
