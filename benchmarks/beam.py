@@ -46,7 +46,8 @@ class Softsim:
         model = prepared.model
         if scatter is not None and scatter != model.blocks.scatter:
             model = dataclasses.replace(model, blocks=build_block_layout(
-                model.tets, model.Dm_inv, model.rest_volume, model.node_count, scatter))
+                model.tets, model.Dm_inv, model.rest_volume, model.node_count, scatter,
+                dtype=model.blocks.rest.dtype, model=model.material_id))
         self.model = model
         self.scatter = model.blocks.scatter
         self.dt = prepared.plan.dt

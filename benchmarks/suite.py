@@ -149,7 +149,8 @@ def prefetch(sizes, seconds, repeats, threads):
         prepared = prepared_beam(target)
         model = prepared.model
         layout, n = model.blocks, model.node_count
-        stored = build_block_layout(model.tets, model.Dm_inv, model.rest_volume, n, rest_from_points=False)
+        stored = build_block_layout(model.tets, model.Dm_inv, model.rest_volume, n, rest_from_points=False,
+                                    model=model.material_id)
         variants = dict(zip(PREFETCH_VARIANTS, (
             prefetching(stored, n, None),
             prefetching(stored, n, PREFETCH_BLOCKS_AHEAD, vertex_rows=False),

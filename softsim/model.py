@@ -177,7 +177,8 @@ def build_model(scene, mesh):
     external_accel = gravity[None, :] + traction_force * inv_mass[:, None]
 
     ground = scene.ground
-    blocks = build_block_layout(tets, Dm_inv, rest_volume, n, dtype=np.dtype(scene.precision))
+    blocks = build_block_layout(tets, Dm_inv, rest_volume, n, dtype=np.dtype(scene.precision),
+                                model=MODEL_IDS[material.model])
     part_face_offsets, part_faces = faces_by_part(faces, face_tets, blocks.part_offsets)
     return Model(
         mesh=mesh, vertex_order=vertex_order, tet_order=tet_order, rest_points=points, tets=tets, Dm_inv=Dm_inv,

@@ -16,9 +16,11 @@ import pytest
 import naive
 from softsim.integrators.symplectic_euler import advance, force_buffer, step_arguments, work_buffer
 from softsim.kernels import blocked
-from softsim.kernels.blocked import (BLOCK, PREFETCH_BLOCKS_AHEAD, PREFETCH_FROM_BYTES, ROW_F, ROW_REST, SCRATCH_ROWS,
-                                     block_layout, build_block_layout, cache_aligned_scratch, first_uses,
-                                     gather_corners, owned_vertex_runs, prefetching, rest_from_corners_block)
+from softsim.kernels.blocked import (BLOCK, PREFETCH_BLOCKS_AHEAD, PREFETCH_FROM_BYTES, REST_ROWS, ROW_F, ROW_REST,
+                                     SCRATCH_ROWS, TRIANGULAR_REST_ROWS, block_layout, build_block_layout,
+                                     cache_aligned_scratch, first_uses, gather_corners, owned_vertex_runs,
+                                     prefetching, rest_from_corners_block, triangular_rest_from_corners_block,
+                                     uses_triangular_rest)
 from softsim.kernels.rest_state import rest_state, vertex_tet_csr
 from softsim.kernels.simd import CACHE_LINE_BYTES
 from softsim.materials.models import MODEL_IDS, model_lame_parameters
@@ -34,21 +36,29 @@ class Body:
 
     precision = "float64"
 
-    def __init__(self, points, tets, scatter, rest_from_points=False):
+    def __init__(self, points, tets, scatter, rest_from_points=False, model="stvk"):
         self.X = np.ascontiguousarray(points, dtype=np.float64)
         self.rest_points = self.X
         self.tets = np.ascontiguousarray(tets, dtype=np.int64)
         self.node_count, self.tet_count = len(self.X), len(self.tets)
         self.Dm_inv, self.V0 = rest_state(self.X, self.tets)
         self.csr_offsets, self.csr_slots = vertex_tet_csr(self.tets, self.node_count)
-        # rest_from_points: what a mesh above REST_FROM_POINTS_BYTES gets, no rest data stored
-        self.blocks = build_block_layout(self.tets, self.Dm_inv, self.V0, self.node_count, scatter,
-                                         rest_from_points=rest_from_points)
+        self.scatter, self.rest_from_points = scatter, rest_from_points
+        self.use_model(model)
+
+    def use_model(self, model):
+        """Lay the tets out for the step of ``model`` (its form of rest data, ``uses_triangular_rest``);
+        rest_from_points: what a mesh above REST_FROM_POINTS_BYTES gets, no rest data stored."""
+        self.material_id = MODEL_IDS[model]
+        self.blocks = build_block_layout(self.tets, self.Dm_inv, self.V0, self.node_count, self.scatter,
+                                         rest_from_points=self.rest_from_points, model=self.material_id)
 
     def forces(self, x, model, lam, mu, inv_mass=None, gravity=(0.0, 0.0, 0.0), external_accel=None, chunks=None):
         """The elastic forces at ``x`` [N] from one step of ``advance`` with ``dt = 1`` and ``v = 0``
         (plus the external accelerations, and divided by the masses, where given); chunks: the
         ``threads`` argument of ``advance`` (None: Numba's thread count)."""
+        if MODEL_IDS[model] != self.material_id:
+            self.use_model(model)
         n = self.node_count
         x = np.array(x, dtype=np.float64)
         v = np.zeros_like(x)
@@ -98,19 +108,23 @@ def test_rest_data_computed_in_the_step_give_the_stored_forces(model, scatter):
     np.testing.assert_allclose(f, f_stored, rtol=0, atol=1e-13 * np.abs(f_stored).max())
 
 
-def test_rest_from_corners_block_is_the_stored_rest_data():
+@pytest.mark.parametrize("triangular", [False, True])
+def test_rest_from_corners_block_is_the_stored_rest_data(triangular):
     """``rest_from_corners_block`` against ``kernels.rest_state`` (LU) on a block of distorted tets:
-    every ``Dm^-1`` entry and volume to round-off, in the layout of ``BlockLayout.rest``."""
+    every ``Dm^-1`` entry and volume to round-off, in the layout of ``BlockLayout.rest``; in the
+    triangular form (``triangular_rest_from_corners_block``), every entry of ``R^-1`` against the
+    layout's, found from ``Dm^-1``."""
     points, tets, _ = mesh((4, 4, 4))
     X = points + 0.1 * np.random.default_rng(5).normal(size=points.shape)
     tets = tets[:BLOCK]
     Dm_inv, V0 = rest_state(X, tets)
     assert V0.min() > 0
-    block_tets, block_rest = block_layout(tets, Dm_inv, V0)
+    block_tets, block_rest = block_layout(tets, Dm_inv, V0, triangular=triangular)
+    assert block_rest.shape[2] == (TRIANGULAR_REST_ROWS if triangular else REST_ROWS)
     buf = np.zeros(SCRATCH_ROWS * BLOCK)
     gather_corners(X, block_tets, 0, buf, False, ROW_F)
-    rest_from_corners_block(buf)
-    computed = buf[ROW_REST * BLOCK:].reshape(block_rest[0].shape)
+    (triangular_rest_from_corners_block if triangular else rest_from_corners_block)(buf)
+    computed = buf[ROW_REST * BLOCK:ROW_REST * BLOCK + block_rest[0].size].reshape(block_rest[0].shape)
     scale = np.abs(block_rest[0]).max(axis=(0, 2), keepdims=True)       # per row: Dm^-1 entries, volumes
     assert (np.abs(computed - block_rest[0]) <= 1e-13 * scale).all()
 
@@ -137,7 +151,7 @@ def test_rest_data_vertex_forces_and_scratch_start_at_a_cache_line(dtype):
     allocators give (16 and 32 bytes); the vertex forces start zeroed."""
     points, tets, _ = mesh((7, 5, 3))
     body = Body(points, tets, "colour")
-    layout = build_block_layout(body.tets, body.Dm_inv, body.V0, body.node_count, dtype=dtype)
+    layout = build_block_layout(body.tets, body.Dm_inv, body.V0, body.node_count, dtype=dtype, model=MODEL_IDS["stvk"])
     assert layout.rest.ctypes.data % CACHE_LINE_BYTES == 0 and layout.rest.flags.c_contiguous
     body.precision = np.dtype(dtype).name
     forces = force_buffer(body, dtype)
@@ -191,7 +205,8 @@ def test_slab_order_makes_two_colours_of_equal_parts(cells):
     points, tets = structured_box(tuple(float(c) for c in cells), (0.0, 0.0, 0.0), 1.0)
     points, tets, _, _ = renumber_for_locality(points, tets, slabs=8)
     body = Body(points, tets, "colour")
-    layout = build_block_layout(body.tets, body.Dm_inv, body.V0, body.node_count, "colour", slabs=8)
+    layout = build_block_layout(body.tets, body.Dm_inv, body.V0, body.node_count, "colour", slabs=8,
+                                model=MODEL_IDS["stvk"])
     assert np.diff(layout.colour_offsets).tolist() == [4, 4]
     sizes = np.diff(layout.part_offsets)
     assert sizes.size == 8 and sizes[:-1].min() >= 0.95 * sizes.max() and sizes[-1] >= 0.6 * sizes.max()
@@ -260,33 +275,65 @@ def test_first_uses_list_each_vertex_of_a_part_once_at_the_block_that_uses_it_fi
 
 
 def test_only_meshes_whose_rest_data_outgrow_the_cache_prefetch():
-    """The threshold is on the bytes of rest data: about 100k tets in float64, twice that in float32."""
+    """The threshold is on the bytes of rest data: about 100k tets in float64 (``linear``: 80 B a
+    tet; 150k in the triangular form's 56), twice that in float32."""
+    linear, stvk = MODEL_IDS["linear"], MODEL_IDS["stvk"]
     tets_over = PREFETCH_FROM_BYTES // (10 * 8) + BLOCK
     tets = np.zeros((tets_over, 4), dtype=np.int64)
     Dm_inv, V0 = np.zeros((tets_over, 3, 3)), np.zeros(tets_over)
-    large = build_block_layout(tets, Dm_inv, V0, 1)
+    large = build_block_layout(tets, Dm_inv, V0, 1, model=linear)
     assert large.prefetch == PREFETCH_BLOCKS_AHEAD
     assert large.first_vertices.tolist() == [0] and large.first_offsets[1] == 1     # one vertex, first used by block 0
-    assert build_block_layout(tets, Dm_inv, V0, 1, dtype=np.float32).prefetch is None
-    assert build_block_layout(tets[:tets_over // 2], Dm_inv[:tets_over // 2], V0[:tets_over // 2], 1).prefetch is None
+    assert build_block_layout(tets, Dm_inv, V0, 1, dtype=np.float32, model=linear).prefetch is None
+    assert build_block_layout(tets[:tets_over // 2], Dm_inv[:tets_over // 2], V0[:tets_over // 2], 1,
+                              model=linear).prefetch is None
+    Dm_inv[:] = np.eye(3)                      # the triangular form factors Dm: it must be invertible
+    assert build_block_layout(tets, Dm_inv, V0, 1, model=stvk).prefetch is None
+    triangular_over = PREFETCH_FROM_BYTES // (7 * 8) + BLOCK
+    tets, Dm_inv, V0 = np.zeros((triangular_over, 4), np.int64), np.tile(np.eye(3), (triangular_over, 1, 1)), np.zeros(triangular_over)
+    assert build_block_layout(tets, Dm_inv, V0, 1, model=stvk).prefetch == PREFETCH_BLOCKS_AHEAD
 
 
-def test_only_float64_meshes_whose_rest_data_outgrow_the_threshold_compute_them_in_the_step(monkeypatch):
+@pytest.mark.parametrize("model", ["stvk", "linear"])      # rest data in the triangular form, and the full one
+def test_only_float64_meshes_whose_rest_data_outgrow_the_threshold_compute_them_in_the_step(monkeypatch, model):
     """``BlockLayout.rest_from_points`` above ``REST_FROM_POINTS_BYTES`` of rest data, in float64
-    only (float32 steps hold displacements, and its rest data are half the bytes)."""
+    only (float32 steps hold displacements, and its rest data are half the bytes); the layout keeps
+    the form the step reads."""
     points, tets, _ = mesh((4, 3, 3))
     Dm_inv, V0 = rest_state(points, tets)
-    rest_bytes = block_layout(tets, Dm_inv, V0)[1].nbytes
+    model = MODEL_IDS[model]
+    triangular = uses_triangular_rest(model, np.float64)
+    rest_bytes = block_layout(tets, Dm_inv, V0, triangular=triangular)[1].nbytes
     for threshold, expected in ((rest_bytes - 1, True), (rest_bytes, False)):
         monkeypatch.setattr(blocked, "REST_FROM_POINTS_BYTES", threshold)
-        layout = build_block_layout(tets, Dm_inv, V0, len(points))
+        layout = build_block_layout(tets, Dm_inv, V0, len(points), model=model)
         assert layout.rest_from_points is expected
         assert layout.rest.shape[0] == (0 if expected else layout.tets.shape[0])     # stored only where read
-        assert layout.rest.dtype == np.float64
+        assert layout.rest.dtype == np.float64 and layout.triangular is triangular
     monkeypatch.setattr(blocked, "REST_FROM_POINTS_BYTES", 0)
-    assert not build_block_layout(tets, Dm_inv, V0, len(points), dtype=np.float32).rest_from_points
-    stored = build_block_layout(tets, Dm_inv, V0, len(points), rest_from_points=False)    # asked for: stored
+    assert not build_block_layout(tets, Dm_inv, V0, len(points), dtype=np.float32, model=model).rest_from_points
+    stored = build_block_layout(tets, Dm_inv, V0, len(points), rest_from_points=False, model=model)   # asked for: stored
     assert not stored.rest_from_points and stored.rest.nbytes == rest_bytes
+
+
+@pytest.mark.parametrize("model, dtype, triangular", [
+    ("stvk", np.float64, True), ("neohookean", np.float64, True), ("corotated", np.float64, True),
+    ("linear", np.float64, False), ("stvk", np.float32, False), ("linear", np.float32, False)])
+def test_the_objective_laws_take_the_triangular_rest_data_in_float64_and_the_step_checks_the_form(model, dtype,
+                                                                                                   triangular):
+    """Float64 StVK, neo-Hookean and corotated read ``R^-1`` and ``V0`` (7 rows a group); ``linear``
+    (not invariant under a turn of the rest frame) and float32 (displacements) ``Dm^-1`` and ``V0``
+    (10).  A step given the other form refuses it, naming both."""
+    points, tets, _ = mesh((4, 3, 3))
+    Dm_inv, V0 = rest_state(points, tets)
+    assert uses_triangular_rest(MODEL_IDS[model], dtype) is triangular
+    layout = build_block_layout(tets, Dm_inv, V0, len(points), dtype=dtype, model=MODEL_IDS[model])
+    assert layout.triangular is triangular
+    assert layout.rest.shape[2] == (TRIANGULAR_REST_ROWS if triangular else REST_ROWS)
+    other = "linear" if triangular else "stvk"
+    with pytest.raises(ValueError, match="triangular" if not triangular else "full"):
+        layout.check_model(MODEL_IDS[other], np.float64)
+    layout.check_model(MODEL_IDS[model], dtype)
 
 
 def test_the_step_refuses_a_layout_that_neither_holds_nor_computes_its_rest_data():
@@ -419,7 +466,8 @@ def test_moving_vertices_inside_the_parts_matches_a_numpy_step(ground, scatter, 
     assert model.blocks.colour_count == 2
     if scatter == "csr":
         model = dataclasses.replace(model, blocks=build_block_layout(model.tets, model.Dm_inv, model.rest_volume,
-                                                                     model.node_count, "csr"))
+                                                                     model.node_count, "csr",
+                                                                     model=model.material_id))
     dt = prepared.plan.dt
     results = []
     for threads, one_region in ((1, True), (2, True), (2, False)):

@@ -99,7 +99,7 @@ class SingleBody(Body):
         from softsim.kernels.blocked import build_block_layout
 
         self.blocks = build_block_layout(self.tets, self.Dm_inv, self.V0, self.node_count, scatter,
-                                         dtype=np.float32)
+                                         dtype=np.float32, model=self.material_id)
         self.rest_points, self.inv_mass = self.X, np.ones(self.node_count)
         self.external_accel = self.held_velocity = np.zeros((self.node_count, 3))
         self.gravity, self.has_tractions = np.zeros(3), False

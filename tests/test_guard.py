@@ -176,14 +176,16 @@ def test_refuse_refuses_before_any_output_and_substep_agrees_with_auto(scene, tm
         np.testing.assert_allclose(b["frames/points"][-1], a["frames/points"][-1], atol=0.02 * sag)
 
 
-def test_element_checks_tell_whether_any_tet_moved_as_the_largest_change_does_and_nan_moved(scene):
+@pytest.mark.parametrize("material", ["stvk", "linear"])     # rest data in the triangular form, and the full one
+def test_element_checks_tell_whether_any_tet_moved_as_the_largest_change_does_and_nan_moved(scene, material):
     """The guard's test of whether the elements moved enough since it last computed the stable step
     to compute it again, in the same compiled pass that measures J and the stretch (blocked and tet
     by tet), against the largest change in NumPy; a NaN counts as moved."""
     from softsim.kernels.element_checks import block_volume_ratios_and_stretches, element_volume_ratios_and_stretches
 
-    model = prepare(scene(mesh={**CUBE, "element_size": 0.03}, material={"model": "stvk", **RUBBER})).model
+    model = prepare(scene(mesh={**CUBE, "element_size": 0.03}, material={"model": material, **RUBBER})).model
     assert model.tet_count % 64 != 0            # a last block part-filled
+    assert model.blocks.triangular == (material != "linear")
     m, rng, limit = model.tet_count, np.random.default_rng(3), 0.05
     x_rest = model.rest_points.copy()
     J_rest, stretch_rest, J, stretch = np.empty(m), np.empty(m), np.empty(m), np.empty(m)
@@ -192,7 +194,7 @@ def test_element_checks_tell_whether_any_tet_moved_as_the_largest_change_does_an
 
     # the layout of a mesh above REST_FROM_POINTS_BYTES: no rest data stored, the pass computes them
     computing = build_block_layout(model.tets, model.Dm_inv, model.rest_volume, model.node_count,
-                                   rest_from_points=True)
+                                   rest_from_points=True, model=model.material_id)
     assert computing.rest.shape[0] == 0
 
     def both_say(x, J_seen, stretch_seen):

@@ -13,8 +13,9 @@ import numpy as np
 import pytest
 
 import naive
-from softsim.kernels.blocked import (BLOCK, FALLBACK_VECTOR_MIN_LANES, NEWTON_VECTOR_MIN_LANES, REST_ROWS,
-                                     ROW_F, ROW_VOLUME, ROW_X, ROWS, corotated_block, lanes_per_group)
+from softsim.kernels.blocked import (BLOCK, FALLBACK_VECTOR_MIN_LANES, NEWTON_VECTOR_MIN_LANES, ROW_F,
+                                     ROW_TRIANGULAR_VOLUME, ROW_X, ROWS, TRIANGULAR_REST_ROWS, corotated_block,
+                                     lanes_per_group)
 from softsim.kernels.polar3 import jacobi_polar_rotation, newton_polar_rotation_jit, newton_polar_start_jit, polar_rotation
 from softsim.materials.models import corotated_energy_density, corotated_first_piola, model_lame_parameters
 from test_blocked_kernels import Body
@@ -214,13 +215,13 @@ def test_singular_F_gives_a_finite_stress():
 
 def block_of(Fs):
     """The rest rows and scratch buffer of a block whose lane j has deformation gradient exactly
-    ``Fs[j]``: Dm^-1 = I, V0 = 1, corner 0 at the origin, corners 1..3 at the columns of F; its
-    corner forces are then exactly ``-P`` (columns on corners 1..3)."""
+    ``Fs[j]``: Dm^-1 = R^-1 = I (the triangular form), V0 = 1, corner 0 at the origin, corners 1..3
+    at the columns of F; its corner forces are then exactly ``-P`` (columns on corners 1..3)."""
     lanes = lanes_per_group(np.float64)
-    rest = np.zeros((BLOCK // lanes, REST_ROWS, lanes))
-    for r in (0, 4, 8):
+    rest = np.zeros((BLOCK // lanes, TRIANGULAR_REST_ROWS, lanes))
+    for r in (0, 3, 5):                            # the diagonal of R^-1: entries 00, 11, 22
         rest[:, r] = 1.0
-    rest[:, ROW_VOLUME] = 1.0
+    rest[:, ROW_TRIANGULAR_VOLUME] = 1.0
     buf = np.zeros(ROWS * BLOCK)
     for c in range(1, 4):
         for k in range(3):

@@ -422,6 +422,7 @@ def step_arguments(model, work):
     needed = FORCE_COLUMNS * n if layout.scatter == "colour" else 12 * m
     if flat.size < needed:
         raise ValueError(f"work buffer of {flat.size} floats, the {layout.scatter} scatter needs {needed}")
+    layout.check_model(model.material_id, flat.dtype)
     if not layout.rest_from_points and layout.rest.shape[0] != layout.tets.shape[0]:
         raise ValueError("the layout holds no rest data (built with rest_from_points); the step must compute them")
     blocks = (layout.tets, layout.rest, layout.tet_count, layout.part_offsets, layout.colour_parts,

@@ -130,7 +130,7 @@ def with_rest_state(model, Dm_inv=None, rest_volume=None):
         # stored whatever the mesh's size: computed from the rest positions, they would not be these
         changes["blocks"] = build_block_layout(model.tets, Dm_inv, rest_volume, model.node_count,
                                                scatter=model.blocks.scatter, dtype=model.blocks.rest.dtype,
-                                               rest_from_points=False)
+                                               rest_from_points=False, model=model.material_id)
     return replace(model, **changes)
 
 
