@@ -297,8 +297,9 @@ def test_only_meshes_whose_rest_data_outgrow_the_cache_prefetch():
 @pytest.mark.parametrize("model", ["stvk", "linear"])      # rest data in the triangular form, and the full one
 def test_only_float64_meshes_whose_rest_data_outgrow_the_threshold_compute_them_in_the_step(monkeypatch, model):
     """``BlockLayout.rest_from_points`` above ``REST_FROM_POINTS_BYTES`` of rest data, in float64
-    only (float32 steps hold displacements, and its rest data are half the bytes); the layout keeps
-    the form the step reads."""
+    only (float32 steps hold displacements, and its rest data are half the bytes) and in the full
+    form only (the triangular form is slower computed than read); the layout keeps the form the
+    step reads, also where asked to compute them."""
     points, tets, _ = mesh((4, 3, 3))
     Dm_inv, V0 = rest_state(points, tets)
     model = MODEL_IDS[model]
@@ -307,6 +308,7 @@ def test_only_float64_meshes_whose_rest_data_outgrow_the_threshold_compute_them_
     for threshold, expected in ((rest_bytes - 1, True), (rest_bytes, False)):
         monkeypatch.setattr(blocked, "REST_FROM_POINTS_BYTES", threshold)
         layout = build_block_layout(tets, Dm_inv, V0, len(points), model=model)
+        expected &= not triangular
         assert layout.rest_from_points is expected
         assert layout.rest.shape[0] == (0 if expected else layout.tets.shape[0])     # stored only where read
         assert layout.rest.dtype == np.float64 and layout.triangular is triangular
@@ -314,6 +316,8 @@ def test_only_float64_meshes_whose_rest_data_outgrow_the_threshold_compute_them_
     assert not build_block_layout(tets, Dm_inv, V0, len(points), dtype=np.float32, model=model).rest_from_points
     stored = build_block_layout(tets, Dm_inv, V0, len(points), rest_from_points=False, model=model)   # asked for: stored
     assert not stored.rest_from_points and stored.rest.nbytes == rest_bytes
+    computing = build_block_layout(tets, Dm_inv, V0, len(points), rest_from_points=True, model=model)
+    assert computing.rest_from_points and computing.rest.shape[0] == 0 and computing.triangular is triangular
 
 
 @pytest.mark.parametrize("model, dtype, triangular", [

@@ -183,7 +183,10 @@ PREFETCH_FROM_BYTES = 8 * 2**20
 # Beam, 2 threads, one process, medians of 9 interleaved rounds, against the stored rest data
 # (both prefetching): 0.83x at 310k, 0.97x at 1M (77 MiB of rest data), 1.13x
 # at 2M (150 MiB).  (Every block reading the same rest data, always in cache, bounds what can be
-# gained: 1.50x at 1M, 1.45x at 2M.)
+# gained: 1.50x at 1M, 1.45x at 2M.)  In the triangular form (``uses_triangular_rest``) the rest data
+# are 56 bytes a tet, and computing them takes Gram-Schmidt's two square roots and a division a
+# tet: 0.73x at 310k, 0.77x at 1M and 0.79x at 2M against the stored ones (``python -m benchmarks``,
+# section ``prefetch``), so that form is always stored unless asked for (``rest_from_points=True``).
 REST_FROM_POINTS_BYTES = 128 * 2**20
 
 # corotated: the Jacobi SVD of the lanes where Newton's polar iteration did not converge runs as
@@ -235,7 +238,8 @@ class BlockLayout:
     whole_rows (block_count,) bool: block b does not use the last vertex, so its gather may load
     every corner's row as four values (``gather_corners``);
     rest_from_points: the step computes each block's rest data from the rest positions instead of
-    reading ``rest`` (float64 only, above ``REST_FROM_POINTS_BYTES``; ``rest_from_corners_block``);
+    reading ``rest`` (float64 rest data in the full form only, above ``REST_FROM_POINTS_BYTES``;
+    ``rest_from_corners_block``);
     ``build_block_layout`` then stores none (``rest`` has no blocks), and so do the guard's element
     checks (``kernels.element_checks``).
     """
@@ -282,12 +286,12 @@ def build_block_layout(tets, Dm_inv, rest_volume, node_count, scatter=None, slab
     data, ``uses_triangular_rest``); ``scatter``: ``"colour"`` (None: the default) or ``"csr"``;
     ``dtype`` of the rest data: the precision of the step (float64 or float32).  rest_from_points:
     whether the step computes the rest data from the rest positions, the layout then holding none
-    (None: above ``REST_FROM_POINTS_BYTES`` of float64 rest data; True / False for tests and
+    (None: above ``REST_FROM_POINTS_BYTES`` of float64 rest data in the full form; True / False for tests and
     benchmarks)."""
     triangular = uses_triangular_rest(model, dtype)
     rest_bytes = -(-tets.shape[0] // BLOCK) * BLOCK * rest_rows(triangular) * np.dtype(dtype).itemsize
     if rest_from_points is None:
-        rest_from_points = np.dtype(dtype) == np.float64 and rest_bytes > REST_FROM_POINTS_BYTES
+        rest_from_points = np.dtype(dtype) == np.float64 and not triangular and rest_bytes > REST_FROM_POINTS_BYTES
     block_tets, block_rest = block_layout(tets, Dm_inv, rest_volume, dtype, with_rest=not rest_from_points,
                                           triangular=triangular)
     part_offsets = slab_parts(block_tets, node_count, slabs)
