@@ -5,12 +5,13 @@ Every run here writes a file; the autouse fixture of conftest.py checks that no 
 holds a non-finite number.
 """
 
+import dataclasses
+
 import h5py
 import numpy as np
 import pytest
 
 from softsim.errors import ConfigError, SimulationError
-from softsim.kernels import blocked
 from softsim.kernels.blocked import build_block_layout
 from softsim.integrators.stability import exact_stable_step
 from softsim.simulation import prepare, simulate
@@ -35,18 +36,24 @@ def crushed_cube(scene, model, duration=0.5):
                  time={"duration": duration}, output={"frame_interval": duration / 20})
 
 
-def test_a_layout_without_rest_data_runs_as_one_with_them(scene, tmp_path, monkeypatch):
-    """Above ``REST_FROM_POINTS_BYTES`` of rest data the layout stores none: the step and the
-    guard's element checks compute them from the rest positions.  The crushed cube, forced there,
-    re-checks its step as often and ends where it ends with them stored, to round-off."""
+def test_a_layout_without_rest_data_runs_as_one_with_them(scene, tmp_path):
+    """A layout that stores no rest data (``rest_from_points``: float64 ``Dm^-1`` above
+    ``REST_FROM_POINTS_BYTES``, or asked for in the triangular form): the step and the guard's
+    element checks compute them from the rest positions.  The crushed neo-Hookean cube (the
+    triangular form), forced there, re-checks its step as often and ends where it ends with them
+    stored, to round-off."""
     s = crushed_cube(scene, "neohookean", duration=0.1)
     s = s.model_copy(update={"time": s.time.model_copy(update={
         "dt": 0.9 * exact_stable_step(prepare(s).model), "dt_policy": "substep"})})
     runs = {}
     for computing in (False, True):
-        if computing:
-            monkeypatch.setattr(blocked, "REST_FROM_POINTS_BYTES", 0)
         prepared = prepare(s)
+        if computing:
+            model = prepared.model
+            assert model.blocks.triangular
+            prepared = dataclasses.replace(prepared, model=dataclasses.replace(model, blocks=build_block_layout(
+                model.tets, model.Dm_inv, model.rest_volume, model.node_count, rest_from_points=True,
+                model=model.material_id)))
         assert prepared.model.blocks.rest_from_points is computing
         assert (prepared.model.blocks.rest.shape[0] == 0) is computing
         summary = simulate(prepared, tmp_path / f"{computing}.h5")

@@ -49,8 +49,9 @@ corners 1, 2, 3 and ``f0 = -(h1 + h2 + h3)``, exactly as ``forces.tet_corner_for
 StVK, neo-Hookean and corotated in float64 take their rest data in the triangular form
 (``uses_triangular_rest``): ``F_r = Ds R^-1`` and ``H = -V0 P(F_r) R^-T``, the same forces for a
 law with ``P(F Q^T) = P(F) Q^T`` (``rotated_rest``), with 18 multiply-adds instead of 27 for each
-product and 56 bytes of rest data a tet instead of 80.  Beam, StVK, 2 threads, stored rest data,
-alternating processes, against the full form: 1.06-1.13x at 100k tets, 1.13-1.25x at 1M.
+product and 56 bytes of rest data a tet instead of 80.  Beam, 2 threads, two alternating processes
+each, against the full form: StVK 1.08-1.12x at 100k tets, 1.26-1.27x at 1M, 1.08-1.09x at 2M;
+neo-Hookean 1.07-1.09x and corotated 1.03-1.06x at 100k.
 
 Precision: the buffer has the dtype of ``x`` and ``block_rest``.  In float64 the corner rows hold
 positions and the laws take ``F``; in float32 they hold displacements ``u = x - X`` and the laws take
@@ -959,17 +960,20 @@ def volume_ratio_and_stretch_block(rest, buf):
             group = rest[g]
             for l in range(lanes):
                 j = g * lanes + l
-                F = lane_rotated_deformation_gradient(group, l, buf, j)
-                buf[ROW_J * BLOCK + j] = mat3_det_inline(F)
-                buf[ROW_STRETCH * BLOCK + j] = math.sqrt(mat3_ddot_inline(F, F) / 3.0)
+                lane_store_volume_ratio_and_stretch(buf, j, lane_rotated_deformation_gradient(group, l, buf, j))
     else:
         for g in range(BLOCK // lanes):
             group = rest[g]
             for l in range(lanes):
                 j = g * lanes + l
-                F = lane_deformation_gradient(group, l, buf, j)
-                buf[ROW_J * BLOCK + j] = mat3_det_inline(F)
-                buf[ROW_STRETCH * BLOCK + j] = math.sqrt(mat3_ddot_inline(F, F) / 3.0)
+                lane_store_volume_ratio_and_stretch(buf, j, lane_deformation_gradient(group, l, buf, j))
+
+
+@njit_inline
+def lane_store_volume_ratio_and_stretch(buf, j, F):
+    """Lane ``j``'s ``J = det F`` and RMS stretch ``|F| / sqrt(3)`` into rows ``ROW_J`` and ``ROW_STRETCH``."""
+    buf[ROW_J * BLOCK + j] = mat3_det_inline(F)
+    buf[ROW_STRETCH * BLOCK + j] = math.sqrt(mat3_ddot_inline(F, F) / 3.0)
 
 
 @njit
