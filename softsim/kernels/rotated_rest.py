@@ -5,7 +5,7 @@ With ``Dm = Q R`` (``Q`` a rotation, ``R`` upper triangular), ``Dm^-1 = R^-1 Q^T
 (StVK, neo-Hookean, corotated; not small-strain ``linear``) has ``psi(F Q^T) = psi(F)`` and
 ``P(F Q^T) = P(F) Q^T``, so the corner forces ``H = -V0 P(F) Dm^-T = -V0 P(F_r) Q^T Q R^-T
 = -V0 P(F_r) R^-T`` need only the upper triangle of ``R^-1`` (Sifakis & Barbic 2012, section 4.3,
-with the rest frame turned by ``Q``; the same invariance underlies their QR-based corotated forms).
+with the rest frame turned by ``Q``).
 ``F_r`` has the same ``det`` and stretches as ``F``.  Forming ``F_r`` and ``H`` then takes 18
 multiply-adds each instead of 27, and a tet's stored rest data 7 numbers instead of 10.
 
