@@ -37,6 +37,7 @@ import numpy as np
 from softsim.config import parse_scene
 from softsim.integrators.stability import exact_stable_step, frequency_analysis, nodal_frequency_bound
 from softsim.integrators.timestep import AUTO_SAFETY, dilatational_wave_speed
+from softsim.kernels.blocked import build_block_layout, uses_triangular_rest
 from softsim.kernels.forces import elastic_forces
 from softsim.materials.models import MODEL_IDS, model_lame_parameters
 from softsim.mesh import checked_mesh
@@ -173,6 +174,10 @@ def model_for(scene, mesh):
     inv_mass = np.where(mass > 0.0, 1.0 / np.where(mass > 0.0, mass, 1.0), 0.0)
     model = dataclasses.replace(model0, material_id=MODEL_IDS[m.model], lam=float(lam), mu=float(mu),
                                 mass=mass, inv_mass=inv_mass)
+    if uses_triangular_rest(model.material_id, model0.blocks.rest.dtype) != model0.blocks.triangular:
+        model = dataclasses.replace(model, blocks=build_block_layout(      # the rest data's form follows the law
+            model.tets, model.Dm_inv, model.rest_volume, model.node_count, dtype=model0.blocks.rest.dtype,
+            model=model.material_id))
     if not checked:
         full = build_model(scene, mesh)
         for field in ("material_id", "lam", "mu", "mass", "inv_mass"):

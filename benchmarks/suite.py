@@ -155,7 +155,8 @@ def prefetch(sizes, seconds, repeats, threads):
             prefetching(stored, n, None),
             prefetching(stored, n, PREFETCH_BLOCKS_AHEAD, vertex_rows=False),
             prefetching(stored, n, PREFETCH_BLOCKS_AHEAD),
-            dataclasses.replace(prefetching(layout, n, PREFETCH_BLOCKS_AHEAD), rest_from_points=True))))
+            prefetching(build_block_layout(model.tets, model.Dm_inv, model.rest_volume, n, rest_from_points=True,
+                                           model=model.material_id), n, PREFETCH_BLOCKS_AHEAD))))
         runners = {name: Softsim(dataclasses.replace(prepared, model=dataclasses.replace(prepared.model, blocks=blocks)))
                    for name, blocks in variants.items()}
         rates = interleaved(runners, seconds, repeats)

@@ -338,6 +338,12 @@ def test_the_objective_laws_take_the_triangular_rest_data_in_float64_and_the_ste
     with pytest.raises(ValueError, match="triangular" if not triangular else "full"):
         layout.check_model(MODEL_IDS[other], np.float64)
     layout.check_model(MODEL_IDS[model], dtype)
+    if dtype == np.float64:                        # the step itself: a linear_block over 7 rows would read past them
+        body = Body(points, tets, "colour", model=model)
+        step_arguments(body, work_buffer(body))
+        body.material_id = MODEL_IDS[other]
+        with pytest.raises(ValueError, match="this step needs float64 in the"):
+            step_arguments(body, work_buffer(body))
 
 
 def test_the_step_refuses_a_layout_that_neither_holds_nor_computes_its_rest_data():

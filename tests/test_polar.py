@@ -17,6 +17,7 @@ from softsim.kernels.blocked import (BLOCK, FALLBACK_VECTOR_MIN_LANES, NEWTON_VE
                                      ROW_TRIANGULAR_VOLUME, ROW_X, ROWS, TRIANGULAR_REST_ROWS, corotated_block,
                                      lanes_per_group)
 from softsim.kernels.polar3 import jacobi_polar_rotation, newton_polar_rotation_jit, newton_polar_start_jit, polar_rotation
+from softsim.kernels.rotated_rest import triangular_rest_inverses
 from softsim.materials.models import corotated_energy_density, corotated_first_piola, model_lame_parameters
 from test_blocked_kernels import Body
 
@@ -213,19 +214,22 @@ def test_singular_F_gives_a_finite_stress():
 # the lane loop
 
 
-def block_of(Fs):
+def block_of(Fs, Dms=None):
     """The rest rows and scratch buffer of a block whose lane j has deformation gradient exactly
-    ``Fs[j]``: Dm^-1 = R^-1 = I (the triangular form), V0 = 1, corner 0 at the origin, corners 1..3
-    at the columns of F; its corner forces are then exactly ``-P`` (columns on corners 1..3)."""
+    ``Fs[j]``, with V0 = 1 and corner 0 at the origin: corners 1..3 at the columns of ``F Dm``, the
+    rest rows those of ``Dm = Dms[j]`` in the triangular form (``R^-1``, ``rotated_rest``; None:
+    ``Dm = I``, so that the lane's corner forces are exactly ``-P``, columns on corners 1..3)."""
     lanes = lanes_per_group(np.float64)
+    Dms = np.broadcast_to(np.eye(3), Fs.shape) if Dms is None else Dms
+    a = triangular_rest_inverses(np.linalg.inv(Dms))               # (BLOCK, 6): R^-1 00, 01, 02, 11, 12, 22
     rest = np.zeros((BLOCK // lanes, TRIANGULAR_REST_ROWS, lanes))
-    for r in (0, 3, 5):                            # the diagonal of R^-1: entries 00, 11, 22
-        rest[:, r] = 1.0
+    rest[:, :6] = a.reshape(BLOCK // lanes, lanes, 6).transpose(0, 2, 1)
     rest[:, ROW_TRIANGULAR_VOLUME] = 1.0
     buf = np.zeros(ROWS * BLOCK)
+    Ds = Fs @ Dms
     for c in range(1, 4):
         for k in range(3):
-            buf[(ROW_X + 3 * c + k) * BLOCK:(ROW_X + 3 * c + k + 1) * BLOCK] = Fs[:, k, c - 1]
+            buf[(ROW_X + 3 * c + k) * BLOCK:(ROW_X + 3 * c + k + 1) * BLOCK] = Ds[:, k, c - 1]
     return rest, buf
 
 
@@ -238,11 +242,12 @@ def second_stage_F(rng):
             return F
 
 
+@pytest.mark.parametrize("rest_frame", [False, True])
 @pytest.mark.parametrize("second_stage, fallbacks", [
     (0, 0), (3, 0), (NEWTON_VECTOR_MIN_LANES + 1, 0), (0, 3), (5, 3), (NEWTON_VECTOR_MIN_LANES + 1, 3),
     (3, FALLBACK_VECTOR_MIN_LANES + 1), (NEWTON_VECTOR_MIN_LANES + 1, FALLBACK_VECTOR_MIN_LANES + 1), (0, BLOCK),
     (BLOCK, 0)])
-def test_lane_loop_gives_the_per_tet_law(second_stage, fallbacks):
+def test_lane_loop_gives_the_per_tet_law(second_stage, fallbacks, rest_frame):
     """A block with ``second_stage`` lanes that need Newton's last two steps and ``fallbacks`` lanes
     that Newton cannot do (inverted, nearly flat, strongly stretched), each through its scalar
     and its packed loop, among near-rest lanes: every lane's forces are -P of
@@ -250,7 +255,12 @@ def test_lane_loop_gives_the_per_tet_law(second_stage, fallbacks):
     LLVM fuses multiplies and adds (``jit.JIT_OPTIONS``) where it chooses, not always at the
     same places in a packed loop as in a scalar function, and the packed Newton paths form the
     stress from the scaled iterate (``blocked.lane_store_corotated_forces``); a few ulps of R show
-    in ``F - R``: up to 6.7e-16 of ``(lam + mu) |F|`` (measured)."""
+    in ``F - R``: up to 6.7e-16 of ``(lam + mu) |F|`` (measured).  With ``rest_frame`` each lane
+    has a random rest shape, left-handed ones among them, so that the lane loop takes ``F_r = F Q``
+    for a rotation Q of its own (``rotated_rest``): its forces are ``-P(F_r) R^-T`` of the per-tet
+    law, to 1e-13 of the lane's largest force.  (That these are ``-P(F) Dm^-T`` is
+    ``test_rotated_rest``'s: for an inverted F near ``s1 = |s2|`` the rotation, and so P, is
+    ill-conditioned, and the two differ by round-off amplified: up to 1e-14 of the force.)"""
     rng = np.random.default_rng(303 + second_stage)
     hard = ("inverted", "nearly flat", "inverted, stretch ratio up to 1e3")
     Fs = np.array([family(hard[j % 3], rng) if j < fallbacks
@@ -259,14 +269,23 @@ def test_lane_loop_gives_the_per_tet_law(second_stage, fallbacks):
     Fs = Fs[rng.permutation(BLOCK)]
     assert sum(not newton_polar_rotation_jit(tuple(F.ravel()))[1] for F in Fs) == fallbacks
     assert sum(not newton_polar_start_jit(tuple(F.ravel()))[1] for F in Fs) == fallbacks + second_stage
-    rest, buf = block_of(Fs)
+    Dms = np.broadcast_to(np.eye(3), Fs.shape)
+    if rest_frame:
+        Dms = np.eye(3) + 0.3 * rng.normal(size=Fs.shape)
+        Dms[::4] = Dms[::4][:, :, [1, 0, 2]]                 # every fourth one left-handed
+    rest, buf = block_of(Fs, Dms)
     corotated_block(rest, buf, LAM, MU, rest)
+    a = triangular_rest_inverses(np.linalg.inv(Dms))
     for j in range(BLOCK):
-        P = P_of(Fs[j])
-        tolerance = 1e-14 * (LAM + MU) * np.abs(Fs[j]).max()
+        A = np.array([[a[j, 0], a[j, 1], a[j, 2]], [0.0, a[j, 3], a[j, 4]], [0.0, 0.0, a[j, 5]]])
+        F_r = Fs[j] @ Dms[j] @ A                             # F Q: what the lane loop sees
+        H = P_of(F_r) @ A.T
+        # with a rest frame, F_r is formed in the lane (with FMAs) and in NumPy to round-off apart,
+        # which an inverted lane's ill-conditioned rotation amplifies: 1e-14 of the force measured
+        tolerance = (1e-13 * np.abs(H).max() if rest_frame else 1e-14 * (LAM + MU) * np.abs(Fs[j]).max())
         for c in range(1, 4):
             for k in range(3):
-                assert abs(buf[(ROW_F + 3 * c + k) * BLOCK + j] + P[k, c - 1]) <= tolerance, (j, c, k)
+                assert abs(buf[(ROW_F + 3 * c + k) * BLOCK + j] + H[k, c - 1]) <= tolerance, (j, c, k)
 
 
 @pytest.mark.parametrize("inverted", [False, True])

@@ -75,7 +75,7 @@ from ..materials.models import (
     LINEAR,
     MODEL_IDS,
     NEOHOOKEAN,
-    ROTATION_INVARIANT,
+    REST_FRAME_INVARIANT,
     STVK,
     corotated_weighted_stress,
     linear_first_piola,
@@ -116,15 +116,15 @@ STAGE_NEWTON = 1.0         # Newton's last two steps to take (det F > 0, the fir
 STAGE_JACOBI = 2.0         # the Jacobi SVD to take (det F <= 0, or Newton did not converge)
 
 
-ROTATION_INVARIANT_IDS = tuple(MODEL_IDS[name] for name in ROTATION_INVARIANT)
+REST_FRAME_INVARIANT_IDS = tuple(MODEL_IDS[name] for name in REST_FRAME_INVARIANT)
 
 
 def uses_triangular_rest(model, dtype):
     """Whether the step of ``model`` (``materials.models`` id) in ``dtype`` takes its rest data in
     the triangular form: float64 (float32 takes displacements, whose law needs ``Dm^-1`` itself)
-    and a law invariant under a rotation of the rest frame (``materials.models.ROTATION_INVARIANT``:
+    and a law whose stress turns with the rest frame (``materials.models.REST_FRAME_INVARIANT``:
     not ``linear``; ``rotated_rest``)."""
-    return np.dtype(dtype) == np.float64 and model in ROTATION_INVARIANT_IDS
+    return np.dtype(dtype) == np.float64 and model in REST_FRAME_INVARIANT_IDS
 
 
 def rest_rows(triangular):
@@ -185,7 +185,7 @@ PREFETCH_FROM_BYTES = 8 * 2**20
 # (both prefetching): 0.83x at 310k, 0.97x at 1M (77 MiB of rest data), 1.13x
 # at 2M (150 MiB).  (Every block reading the same rest data, always in cache, bounds what can be
 # gained: 1.50x at 1M, 1.45x at 2M.)  In the triangular form (``uses_triangular_rest``) the rest data
-# are 56 bytes a tet, and computing them takes Gram-Schmidt's two square roots and a division a
+# are 56 bytes a tet, and computing them takes Gram-Schmidt's two square roots and two divisions a
 # tet: 0.73x at 310k, 0.77x at 1M and 0.79x at 2M against the stored ones (``python -m benchmarks``,
 # section ``prefetch``), so that form is always stored unless asked for (``rest_from_points=True``).
 REST_FROM_POINTS_BYTES = 128 * 2**20
@@ -572,7 +572,7 @@ def gather_corners(x, block_tets, b, buf, whole_rows=False, first_row=ROW_X):
 
 @njit_inline
 def group_rows(rest, g, upcoming):
-    """Group ``g``'s rest rows (10, ``group_lanes(rest)``) of a block's ``rest``; with ``upcoming`` (a later
+    """Group ``g``'s rest rows (10 or 7, ``group_lanes(rest)``) of a block's ``rest``; with ``upcoming`` (a later
     block's rest, or None), first fetches group ``g`` of that block into L2.  Where ``upcoming``
     is None, Numba prunes the prefetch after inlining."""
     if upcoming is not None:

@@ -30,7 +30,8 @@ TRIANGULAR_ENTRIES = 6     # (R^-1)_00, _01, _02, _11, _12, _22
 def triangular_rest_inverse(D):
     """``(a00, a01, a02, a11, a12, a22, det)``: the upper triangle of ``R^-1`` [1/m] of ``Dm = Q R``
     (``D``: ``Dm`` as a 9-tuple, row-major, columns the edges ``X_c - X_0`` [m]) and ``det Dm``
-    [m^3].  Gram-Schmidt, one division (of ``r00 r11 det``) for the three reciprocals it needs."""
+    [m^3].  Gram-Schmidt: two square roots and two divisions (one of them, of ``r00 r11 det``,
+    for the three reciprocals the result needs)."""
     c00, c01, c02 = D[0], D[3], D[6]           # the columns of Dm
     c10, c11, c12 = D[1], D[4], D[7]
     c20, c21, c22 = D[2], D[5], D[8]

@@ -54,6 +54,10 @@ MODEL_IDS = {"linear": LINEAR, "stvk": STVK, "corotated": COROTATED, "neohookean
 
 # Models whose energy is invariant under rotation (they conserve angular momentum).
 ROTATION_INVARIANT = ("stvk", "corotated", "neohookean")
+# Models whose stress turns with the rest frame, P(F Q^T) = P(F) Q^T for every rotation Q (objective
+# and isotropic): their float64 step reads R^-1 of Dm = Q R instead of Dm^-1 (``kernels.rotated_rest``).
+# An objective but anisotropic law belongs in ROTATION_INVARIANT and not here.
+REST_FRAME_INVARIANT = ("stvk", "corotated", "neohookean")
 # Models that push an inverted element back to positive volume.
 INVERSION_SAFE = ("corotated", "neohookean")
 
