@@ -103,6 +103,7 @@ def asm():
     import numpy as np
 
     from softsim.kernels import blocked
+    from softsim.materials.models import MODEL_IDS
 
     loops = [(name, f"{name}_block", np.float64) for name in ("linear", "stvk", "corotated", "neohookean")]
     loops += [(f"{name} float32", f"{name}_displacement_block", np.float32) for name in ("linear", "stvk", "neohookean")]
@@ -110,7 +111,7 @@ def asm():
     for name, function, dtype in loops:
         buf = np.zeros(blocked.ROWS * blocked.BLOCK, dtype=dtype)
         lanes = blocked.lanes_per_group(dtype)
-        rows = blocked.rest_rows(dtype is np.float64 and name != "linear")     # blocked.uses_triangular_rest
+        rows = blocked.rest_rows(blocked.uses_triangular_rest(MODEL_IDS[name.split()[0]], dtype))
         rest = np.full((blocked.BLOCK // lanes, rows, lanes), 0.1, dtype=dtype)
         fn = getattr(blocked, function)
         fn(rest, buf, dtype(1.0), dtype(1.0), rest)

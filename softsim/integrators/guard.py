@@ -167,10 +167,9 @@ class FrameGuard:
         moved by more than ``RECHECK_CHANGE`` since the last eigenvalue look (NaN counts as moved)."""
         m = self.model
         if m.blocks.rest.dtype == np.float64:
-            rest_points = np.ascontiguousarray(m.rest_points) if m.blocks.rest_from_points else None
             return block_volume_ratios_and_stretches(x, m.blocks.tets, m.blocks.rest, m.tet_count, m.blocks.whole_rows,
                                                      self.J, self.stretch, self.J_seen, self.stretch_seen,
-                                                     RECHECK_CHANGE, rest_points)
+                                                     RECHECK_CHANGE, m.blocks.points_for_rest(m.rest_points))
         return element_volume_ratios_and_stretches(x, m.tets, m.Dm_inv, self.J, self.stretch, self.J_seen,
                                                    self.stretch_seen, RECHECK_CHANGE)
 

@@ -427,7 +427,7 @@ def step_arguments(model, work):
         raise ValueError("the layout holds no rest data (built with rest_from_points); the step must compute them")
     blocks = (layout.tets, layout.rest, layout.tet_count, layout.part_offsets, layout.colour_parts,
               layout.run_offsets, layout.owned_runs, layout.prefetch, layout.first_offsets, layout.first_vertices,
-              layout.whole_rows, np.ascontiguousarray(model.rest_points) if layout.rest_from_points else None)
+              layout.whole_rows, layout.points_for_rest(model.rest_points))
     if layout.scatter == "colour":
         vertex_forces = flat[:FORCE_COLUMNS * n].reshape(n, FORCE_COLUMNS)
         corner_forces = np.empty((0, 4, 3), dtype=flat.dtype)

@@ -274,10 +274,15 @@ class BlockLayout:
         this layout's rest data: its dtype, and its form (``uses_triangular_rest``)."""
         triangular = uses_triangular_rest(model, dtype)
         if self.rest.dtype != np.dtype(dtype) or self.triangular != triangular:
-            form = "triangular" if triangular else "full"
-            raise ValueError(f"the layout's rest data are {self.rest.dtype} in the "
-                             f"{'triangular' if self.triangular else 'full'} form; this step needs "
-                             f"{np.dtype(dtype)} in the {form} form (build_block_layout(model=...))")
+            form = {True: "triangular", False: "full"}
+            raise ValueError(f"the layout's rest data are {self.rest.dtype} in the {form[self.triangular]} form; "
+                             f"this step needs {np.dtype(dtype)} in the {form[triangular]} form "
+                             f"(build_block_layout(model=...))")
+
+    def points_for_rest(self, rest_points):
+        """What the step and the guard's element checks take as ``rest_points``: the rest positions
+        (n, 3) [m], C-contiguous, where they compute the rest data (``rest_from_points``), else None."""
+        return np.ascontiguousarray(rest_points) if self.rest_from_points else None
 
 
 def build_block_layout(tets, Dm_inv, rest_volume, node_count, scatter=None, slabs=SLABS, dtype=np.float64,
