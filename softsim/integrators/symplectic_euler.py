@@ -28,6 +28,7 @@ from ..kernels.blocked import (BLOCK, SCRATCH_ROWS, block_forces, cache_aligned_
                                prefetch_vertex_rows, scatter_block, store_block_corners)
 from ..kernels.forces import gather_vertex_force
 from ..kernels.jit import njit, njit_inline, njit_parallel
+from ..kernels.polar3 import NEWTON_FIRST_STEPS
 from ..kernels.simd import CACHE_LINE_BYTES, FORCE_COLUMNS, flush_subnormals, restore_float_control
 from ..kernels.sync import fetch_add, load_acquire, spin_pause, yield_thread
 
@@ -261,7 +262,8 @@ def block_range_forces(x, rest, blocks, first, stop, model, lam, mu, scatter, ve
     rest_points = blocks[11]
     for b in range(first, stop):
         prefetch_vertex_rows(x, vertex_forces, blocks[8], blocks[9], b, prefetch, rest_points)
-        block_forces(x, block_tets, block_rest, b, model, lam, mu, buf, rest, prefetch, blocks[10][b], rest_points)
+        block_forces(x, block_tets, block_rest, b, model, lam, mu, buf, rest, prefetch, blocks[10][b], blocks[12],
+                     rest_points)
         lane_count = min(BLOCK, tet_count - b * BLOCK)
         if scatter:
             scatter_block(block_tets, b, lane_count, buf, vertex_forces)
@@ -303,8 +305,11 @@ def advance(x, rest, v, step_start, step_count, dt,
     from them (and ``held_start`` too).  Every array and scalar is in the precision of ``x``.
     step_start: index of the first step (time ``step_start * dt`` [s]); dt [s].
     blocks: ``(block_tets, block_rest, tet_count, part_offsets, colour_parts, run_offsets, owned_runs,
-    prefetch, first_offsets, first_vertices, whole_rows, rest_points)`` of a ``kernels.blocked.BlockLayout``
-    (rest_points: None, or the rest positions where ``rest_from_points``); colour_offsets:
+    prefetch, first_offsets, first_vertices, whole_rows, rest_points, first_steps)`` of a
+    ``kernels.blocked.BlockLayout`` (rest_points: None, or the rest positions where
+    ``rest_from_points``; first_steps: (block_count,) uint8, corotated's first steps of Newton's
+    iteration per block, ``kernels.blocked.corotated_block``, which adapts them step by step from
+    the 4 ``step_arguments`` starts each call with); colour_offsets:
     (colours + 1,) into colour_parts; model id, Lame lam, mu [Pa].
     scatter True: the forces are added into ``vertex_forces`` (node_count, 4: x, y, z and a zero,
     ``kernels.simd.FORCE_COLUMNS``), one colour of parts
@@ -414,7 +419,9 @@ def advance(x, rest, v, step_start, step_count, dt,
 def step_arguments(model, work):
     """The ``blocks, colour_offsets, scatter, offsets, slots, vertex_forces, corner_forces``
     arguments of ``advance`` for ``model``; work: a buffer from ``work_buffer`` (or larger), in the
-    precision of the step (``SinglePrecisionWork.forces`` in float32).
+    precision of the step (``SinglePrecisionWork.forces`` in float32).  Each call starts every block
+    at four first steps of corotated's Newton iteration (``blocks[12]``), so that a call's forces do
+    not depend on earlier calls: a resumed run steps as the run that never stopped.
     """
     layout = model.blocks
     n, m = model.node_count, model.tet_count
@@ -427,7 +434,8 @@ def step_arguments(model, work):
         raise ValueError("the layout holds no rest data (built with rest_from_points); the step must compute them")
     blocks = (layout.tets, layout.rest, layout.tet_count, layout.part_offsets, layout.colour_parts,
               layout.run_offsets, layout.owned_runs, layout.prefetch, layout.first_offsets, layout.first_vertices,
-              layout.whole_rows, layout.points_for_rest(model.rest_points))
+              layout.whole_rows, layout.points_for_rest(model.rest_points),
+              np.full(layout.tets.shape[0], NEWTON_FIRST_STEPS, dtype=np.uint8))
     if layout.scatter == "colour":
         vertex_forces = flat[:FORCE_COLUMNS * n].reshape(n, FORCE_COLUMNS)
         corner_forces = np.empty((0, 4, 3), dtype=flat.dtype)

@@ -89,7 +89,8 @@ from ..mesh.reorder import SLABS
 from .jit import njit, njit_inline
 from .mat3 import (mat3_cofactor_inline, mat3_ddot_inline, mat3_det_inline, mat3_mul_inline,
                    mat3_mul_transpose_b_inline, mat3_scale_inline)
-from .polar3 import jacobi_rotation_and_stretch, newton_polar_finish, newton_polar_start
+from .polar3 import (NEWTON_FIRST_STEPS, jacobi_rotation_and_stretch, newton_polar_finish, newton_polar_start,
+                     newton_polar_start_three, newton_polar_start_two)
 from .rotated_rest import TRIANGULAR_ENTRIES, triangular_rest_inverse, triangular_rest_inverses
 from .simd import (CACHE_LINE_BYTES, FORCE_COLUMNS, add_corner_force, gather_corner_rows, prefer_wide_vectors,
                    prefetch_line)
@@ -107,13 +108,14 @@ ROW_J = ROW_F              # the guard's element checks: J = det F
 ROW_STRETCH = ROW_F + 1    # and the RMS stretch |F| / sqrt(3)
 ROW_STAGE = 24             # corotated: what a lane still needs: STAGE_DONE, STAGE_NEWTON or STAGE_JACOBI
 ROW_LIST = 25              # corotated: the lanes a scalar pass redoes, listed first
-ROW_NEWTON = 26            # corotated: rows 26..34 ``Z`` of Newton's iteration (X_4 = inv Z), 35 inv, 36 det F
+ROW_NEWTON = 26            # corotated: rows 26..34 ``Z`` of Newton's iteration (X_k = inv Z), 35 inv, 36 det F
 ROWS = 37                  # rows of the scratch buffer; ``ROWS * BLOCK`` floats
 ROW_REST = ROWS            # computed rest data (rest_from_points): REST_ROWS rows more
 SCRATCH_ROWS = ROW_REST + REST_ROWS   # rows of the step's scratch buffer, computed rest data included
 STAGE_DONE = 0.0           # corotated, row ROW_STAGE: forces stored
-STAGE_NEWTON = 1.0         # Newton's last two steps to take (det F > 0, the first four did not settle)
+STAGE_NEWTON = 1.0         # Newton's last two steps to take (det F > 0, the first steps did not settle)
 STAGE_JACOBI = 2.0         # the Jacobi SVD to take (det F <= 0, or Newton did not converge)
+MIN_FIRST_STEPS = 2        # corotated: the fewest first steps of Newton's iteration a block takes
 
 
 REST_FRAME_INVARIANT_IDS = tuple(MODEL_IDS[name] for name in REST_FRAME_INVARIANT)
@@ -780,30 +782,67 @@ def list_lanes(buf, stage):
 
 
 @njit
-def corotated_block(rest, buf, lam, mu, upcoming):
+def corotated_block(rest, buf, lam, mu, upcoming, first_steps=NEWTON_FIRST_STEPS):
     """The rotation of each lane by Newton's polar iteration in two stages, as
-    ``polar3.newton_polar_rotation`` takes them: four steps for every lane (packed), the last two
-    for the lanes the four did not settle (not for inverted ones: Newton cannot accept them); the
-    lanes where it did not converge (inverted, nearly flat or strongly stretched tets) are redone
-    with the Jacobi SVD, as ``polar3.polar_rotation`` does per tet.  Every lane gets the per-tet
-    law's forces to round-off.  rest: a block's rest rows in the triangular form (``F_r``,
-    ``lane_rotated_deformation_gradient``)."""
+    ``polar3.newton_polar_rotation`` takes them: ``first_steps`` steps (4, 3 or 2) for every lane
+    (packed), two more for the lanes these did not settle (not for inverted ones: Newton cannot
+    accept them); the lanes where it did not converge (inverted, nearly flat or strongly stretched
+    tets) are redone with the Jacobi SVD, as ``polar3.polar_rotation`` does per tet.  Every lane
+    gets the per-tet law's forces to round-off.  rest: a block's rest rows in the triangular form
+    (``F_r``, ``lane_rotated_deformation_gradient``).
+
+    Returns the first steps for the block's next step (``next_first_steps``): one more (4 at most)
+    where a lane that is not inverted needed the second stage, one fewer (2 at least) where every
+    such lane would have settled with one step fewer (``polar3.NEWTON_STEP_OVERDONE``).  A step
+    changes the strains little, so a block of small strains soon takes two or three steps instead
+    of four; a wrong guess costs only the second stage, or the Jacobi SVD, for its lanes, once."""
     prefer_wide_vectors()
     lanes = group_lanes(rest)
     pending = 0
-    for g in range(BLOCK // lanes):
-        group = group_rows(rest, g, upcoming)
-        for l in range(lanes):
-            j = g * lanes + l
-            F = lane_rotated_deformation_gradient(group, l, buf, j)
-            Z, inv, det, converged = newton_polar_start(F)
-            lane_store_corotated_forces(group, l, buf, j, F, Z, inv, lam, mu)
-            lane_store_newton(buf, j, Z, inv, det)
-            stage = STAGE_DONE if converged else (STAGE_NEWTON if det > 0.0 else STAGE_JACOBI)
-            buf[ROW_STAGE * BLOCK + j] = stage
-            pending += 1 if stage != STAGE_DONE else 0
+    unsettled = 0
+    # Three copies of the first stage's loop, one per step count: a step count taken as a variable
+    # inside the lane loop would keep it scalar.
+    if first_steps == 2:
+        for g in range(BLOCK // lanes):
+            group = group_rows(rest, g, upcoming)
+            for l in range(lanes):
+                j = g * lanes + l
+                F = lane_rotated_deformation_gradient(group, l, buf, j)
+                Z, inv, det, converged, overdone = newton_polar_start_two(F)
+                lane_store_corotated_forces(group, l, buf, j, F, Z, inv, lam, mu)
+                lane_store_newton(buf, j, Z, inv, det)
+                stage = STAGE_DONE if converged else (STAGE_NEWTON if det > 0.0 else STAGE_JACOBI)
+                buf[ROW_STAGE * BLOCK + j] = stage
+                pending += 1 if stage != STAGE_DONE else 0
+                unsettled += 1 if det > 0.0 and not overdone else 0
+    elif first_steps == 3:
+        for g in range(BLOCK // lanes):
+            group = group_rows(rest, g, upcoming)
+            for l in range(lanes):
+                j = g * lanes + l
+                F = lane_rotated_deformation_gradient(group, l, buf, j)
+                Z, inv, det, converged, overdone = newton_polar_start_three(F)
+                lane_store_corotated_forces(group, l, buf, j, F, Z, inv, lam, mu)
+                lane_store_newton(buf, j, Z, inv, det)
+                stage = STAGE_DONE if converged else (STAGE_NEWTON if det > 0.0 else STAGE_JACOBI)
+                buf[ROW_STAGE * BLOCK + j] = stage
+                pending += 1 if stage != STAGE_DONE else 0
+                unsettled += 1 if det > 0.0 and not overdone else 0
+    else:
+        for g in range(BLOCK // lanes):
+            group = group_rows(rest, g, upcoming)
+            for l in range(lanes):
+                j = g * lanes + l
+                F = lane_rotated_deformation_gradient(group, l, buf, j)
+                Z, inv, det, converged, overdone = newton_polar_start(F)
+                lane_store_corotated_forces(group, l, buf, j, F, Z, inv, lam, mu)
+                lane_store_newton(buf, j, Z, inv, det)
+                stage = STAGE_DONE if converged else (STAGE_NEWTON if det > 0.0 else STAGE_JACOBI)
+                buf[ROW_STAGE * BLOCK + j] = stage
+                pending += 1 if stage != STAGE_DONE else 0
+                unsettled += 1 if det > 0.0 and not overdone else 0
     if pending == 0:
-        return
+        return next_first_steps(first_steps, 0, unsettled)
     newton = 0
     for j in range(BLOCK):
         newton += 1 if buf[ROW_STAGE * BLOCK + j] == STAGE_NEWTON else 0
@@ -845,6 +884,20 @@ def corotated_block(rest, buf, lam, mu, upcoming):
             F = lane_rotated_deformation_gradient(group, j % lanes, buf, j)
             R, _, _, _ = jacobi_rotation_and_stretch(F)
             lane_store_corotated_forces(group, j % lanes, buf, j, F, R, 1.0, lam, mu)
+    return next_first_steps(first_steps, newton, unsettled)
+
+
+@njit_inline
+def next_first_steps(first_steps, newton, unsettled):
+    """The first steps of Newton's iteration for a block's next step (``corotated_block``), from this
+    step's ``first_steps``, its lanes sent to the second stage (``newton``, inverted ones not
+    counted) and its lanes not ``overdone`` (``unsettled``, inverted ones not counted): between 2 and
+    ``polar3.NEWTON_FIRST_STEPS``."""
+    if newton > 0:
+        return min(first_steps + 1, NEWTON_FIRST_STEPS)
+    if unsettled == 0:
+        return max(first_steps - 1, MIN_FIRST_STEPS)
+    return first_steps
 
 
 @njit
@@ -982,7 +1035,8 @@ def lane_store_volume_ratio_and_stretch(buf, j, F):
 
 
 @njit
-def block_forces(x, block_tets, block_rest, b, model, lam, mu, buf, rest, prefetch, whole_rows, rest_points=None):
+def block_forces(x, block_tets, block_rest, b, model, lam, mu, buf, rest, prefetch, whole_rows, first_steps,
+                 rest_points=None):
     """Corner forces [N] of block ``b`` into rows ``ROW_F..`` of ``buf`` (``ROWS * BLOCK`` values;
     ``SCRATCH_ROWS * BLOCK`` with ``rest_points``).
 
@@ -990,15 +1044,19 @@ def block_forces(x, block_tets, block_rest, b, model, lam, mu, buf, rest, prefet
     them (the laws then take ``H = F - I``; ``materials.models.DISPLACEMENT_FORM_MODELS`` only).
     prefetch: None, or how many blocks ahead to fetch rest data into L2 (``BlockLayout.prefetch``).
     whole_rows: whether the block's corners leave out x's last row (``gather_corners``).
+    first_steps: (block_count,) uint8, each block's first steps of Newton's iteration (corotated,
+    ``corotated_block``): block ``b``'s is read and replaced by those for its next step; the other
+    models leave it alone.
     rest_points: None, or (with ``x`` holding positions) the rest positions (n, 3) [m], from which
     the block's rest data are computed into ``buf`` (``rest_from_corners_block``) instead of read
     from ``block_rest`` (``BlockLayout.rest_from_points``).
     """
     block = gathered_block(x, block_tets, block_rest, b, buf, whole_rows, rest_points)
     if rest_points is not None or prefetch is None:
-        model_forces(block, buf, model, lam, mu, rest, None)
+        first_steps[b] = model_forces(block, buf, model, lam, mu, rest, None, first_steps[b])
     else:
-        model_forces(block, buf, model, lam, mu, rest, block_rest[block_ahead(b, prefetch, block_rest.shape[0])])
+        first_steps[b] = model_forces(block, buf, model, lam, mu, rest,
+                                      block_rest[block_ahead(b, prefetch, block_rest.shape[0])], first_steps[b])
 
 
 @njit_inline
@@ -1023,16 +1081,18 @@ def gathered_block(x, block_tets, block_rest, b, buf, whole_rows, rest_points):
 
 
 @njit
-def model_forces(block, buf, model, lam, mu, rest, upcoming):
+def model_forces(block, buf, model, lam, mu, rest, upcoming, first_steps=NEWTON_FIRST_STEPS):
     """The lane loop of ``model`` over one block's rest rows ``block`` (see ``block_forces``);
-    upcoming: None, or a later block's rest rows, fetched into L2 meanwhile."""
+    upcoming: None, or a later block's rest rows, fetched into L2 meanwhile.  first_steps: the
+    block's first steps of Newton's iteration (corotated, ``corotated_block``).  Returns those for
+    the block's next step (``first_steps`` itself for the other models)."""
     if rest is None:
         if model == STVK:
             stvk_block(block, buf, lam, mu, upcoming)
         elif model == NEOHOOKEAN:
             neohookean_block(block, buf, lam, mu, upcoming)
         elif model == COROTATED:
-            corotated_block(block, buf, lam, mu, upcoming)
+            return corotated_block(block, buf, lam, mu, upcoming, first_steps)
         else:
             linear_block(block, buf, lam, mu, upcoming)
     else:
@@ -1044,6 +1104,7 @@ def model_forces(block, buf, model, lam, mu, rest, upcoming):
             linear_displacement_block(block, buf, lam, mu, upcoming)
         else:
             raise ValueError("this material model has no displacement form")
+    return first_steps
 
 
 @njit

@@ -11,9 +11,12 @@ moved into the smallest singular value, so that ``R = U V^T`` has det +1 and max
   1986), which converges to the polar factor.  Where det F > 0 that is ``R``; the last step's size
   tells whether it converged.  ``NEWTON_FIRST_STEPS`` steps (``newton_polar_start``) settle the
   tets of small strain; the others take two more (``newton_polar_finish``, ``NEWTON_ITERATIONS``
-  in all).  About 70 flops a step and no division (the iterate is carried scaled, the scale
-  divided out once at the end): the fast path, for the tets of a simulation that are neither
-  inverted, nearly flat nor stretched by more than about 3x.
+  in all).  Tets of smaller strains settle in three or two first steps
+  (``newton_polar_start_three``, ``newton_polar_start_two``): the lane loop takes those where the
+  block's last step showed them enough (``NEWTON_STEP_OVERDONE``).  About 70 flops a step and no
+  division (the iterate is carried scaled, the scale divided out once at the end): the fast path,
+  for the tets of a simulation that are neither inverted, nearly flat nor stretched by more than
+  about 3x.
 - ``jacobi_rotation_and_stretch``: a Jacobi SVD without arrays or branches (after
   McAdams et al. 2011, "Computing the singular value decomposition of 3x3 matrices with minimal
   branching and elementary floating point operations"):
@@ -69,6 +72,15 @@ NEWTON_FIRST_STEPS = 4     # documents the code (newton_polar_start)
 # Largest last Newton step (Frobenius norm of X_k - X_k-1) accepted as converged: the error left in
 # R is about half its square, 5e-15.
 NEWTON_STEP_TOLERANCE = 1e-7
+# A last step at most this long (Frobenius) says that one step fewer would have converged too: Newton
+# converges quadratically (``|X_k - X_k-1|`` about ``|X_k-1 - X_k-2|^2 / 2``), so the step before was
+# about ``sqrt(2 x 2e-15) = 6e-8``, within NEWTON_STEP_TOLERANCE.  A converged iterate's own rounding
+# moves it by about 1e-16 per entry, 3e-16 in all, well below.  ``newton_polar_start_two`` and
+# ``newton_polar_start_three`` take fewer first steps; ``kernels.blocked.corotated_block`` chooses
+# per block, from the block's last step.  Measured (F = Q (I + a G) as above, 4000 samples): after
+# four steps every F up to a = 5e-3 counts as overdone, and three steps accept every F up to
+# a = 5e-3; after three, every F up to 5e-5 (99 % at 1e-4), and two accept every F up to 1e-4.
+NEWTON_STEP_OVERDONE = 2e-15
 # The iterates are carried scaled, ``Z_k = c_k X_k`` (``newton_polar_step``), with ``c_4 = 2^85 d_0^64
 # d_1^16 d_2^4 d_3`` (``d_k = det X_k``, ``d_0 = det F``), which only sets the exponent of Z's
 # entries; products within a step reach about ``c_k``.  A result is accepted only while ``c``
@@ -253,41 +265,65 @@ def newton_polar_step(Z, c):
 
 @njit_inline
 def newton_polar_result(Z, c, W, det_W):
-    """``(inv, converged)`` from the last two iterates ``Z = c X_k`` and ``W = b X_k-1``, ``c = 2 b
-    det W``: ``inv = 1 / c``, so that ``X_k = inv Z``, accepted when the last step, ``X_k - X_k-1 =
-    inv (Z - 2 det W W)``, moved X by at most ``NEWTON_STEP_TOLERANCE`` (Frobenius) and ``c`` lies
-    within ``[NEWTON_SCALE_MIN, NEWTON_SCALE_MAX]``, where neither Z, the step nor ``inv^2``
-    can overflow or fall below the normal numbers.  ``X_k`` is left to the caller: the lane loop
-    of ``kernels.blocked.corotated_block`` folds ``inv`` into the stress instead."""
+    """``(inv, converged, overdone)`` from the last two iterates ``Z = c X_k`` and ``W = b X_k-1``,
+    ``c = 2 b det W``: ``inv = 1 / c``, so that ``X_k = inv Z``, accepted when the last step,
+    ``X_k - X_k-1 = inv (Z - 2 det W W)``, moved X by at most ``NEWTON_STEP_TOLERANCE`` (Frobenius)
+    and ``c`` lies within ``[NEWTON_SCALE_MIN, NEWTON_SCALE_MAX]``, where neither Z, the step nor
+    ``inv^2`` can overflow or fall below the normal numbers; ``overdone`` when the step was at most
+    ``NEWTON_STEP_OVERDONE`` as well (``X_k-1`` would have been accepted).  ``X_k`` is left to the
+    caller: the lane loop of ``kernels.blocked.corotated_block`` folds ``inv`` into the stress
+    instead."""
     inv = 1.0 / c
     D = mat3_add_scaled_inline(Z, W, -2.0 * det_W)   # c (X_k - X_k-1)
     step = inv * inv * mat3_ddot_inline(D, D)
     in_range = c >= NEWTON_SCALE_MIN and c <= NEWTON_SCALE_MAX
-    return inv, in_range and step <= NEWTON_STEP_TOLERANCE * NEWTON_STEP_TOLERANCE
+    converged = in_range and step <= NEWTON_STEP_TOLERANCE * NEWTON_STEP_TOLERANCE
+    return inv, converged, converged and step <= NEWTON_STEP_OVERDONE * NEWTON_STEP_OVERDONE
 
 
 @njit_inline
 def newton_polar_start(F):
-    """``(Z, inv, det, converged)``: the first ``NEWTON_FIRST_STEPS`` steps of Newton's polar
-    iteration from ``X = F``, ``X_4 = inv Z``, accepted (``converged``) when det F > 0 and
-    ``newton_polar_result`` accepts it: the tets of a small strain.  ``newton_polar_finish`` goes
-    on from ``X_4`` and ``det = det F``."""
+    """``(Z, inv, det, converged, overdone)``: the first ``NEWTON_FIRST_STEPS`` steps of Newton's
+    polar iteration from ``X = F``, ``X_4 = inv Z``, accepted (``converged``) when det F > 0 and
+    ``newton_polar_result`` accepts it: the tets of a small strain; ``overdone`` when ``X_3`` would
+    have been accepted too.  ``newton_polar_finish`` goes on from ``X_4`` and ``det = det F``."""
     Z, c, det = newton_polar_step(F, 1.0)
     Z, c, _ = newton_polar_step(Z, c)
     W, b, _ = newton_polar_step(Z, c)               # W = b X_3
     Z, c, det_W = newton_polar_step(W, b)           # Z = c X_4
-    inv, converged = newton_polar_result(Z, c, W, det_W)
-    return Z, inv, det, det > 0.0 and converged
+    inv, converged, overdone = newton_polar_result(Z, c, W, det_W)
+    return Z, inv, det, det > 0.0 and converged, det > 0.0 and overdone
+
+
+@njit_inline
+def newton_polar_start_three(F):
+    """``newton_polar_start`` with three steps, ``X_3 = inv Z``: the tets of a smaller strain (F =
+    Q (I + a G), G standard normal, 4000 samples: all of them up to a = 5e-3, 94 % at 1e-2)."""
+    Z, c, det = newton_polar_step(F, 1.0)
+    W, b, _ = newton_polar_step(Z, c)               # W = b X_2
+    Z, c, det_W = newton_polar_step(W, b)           # Z = c X_3
+    inv, converged, overdone = newton_polar_result(Z, c, W, det_W)
+    return Z, inv, det, det > 0.0 and converged, det > 0.0 and overdone
+
+
+@njit_inline
+def newton_polar_start_two(F):
+    """``newton_polar_start`` with two steps, ``X_2 = inv Z``: the tets of a still smaller strain, as
+    in a steel part (all of them up to a = 1e-4, 65 % at 2e-4)."""
+    W, b, det = newton_polar_step(F, 1.0)           # W = b X_1
+    Z, c, det_W = newton_polar_step(W, b)           # Z = c X_2
+    inv, converged, overdone = newton_polar_result(Z, c, W, det_W)
+    return Z, inv, det, det > 0.0 and converged, det > 0.0 and overdone
 
 
 @njit_inline
 def newton_polar_finish(X, det):
-    """``(Z, inv, converged)``: Newton's steps 5 and 6 from ``X = X_4`` of ``newton_polar_start``
-    (``det = det F``), ``X_6 = inv Z``, accepted as there.  Otherwise X_6 is meaningless (possibly
-    NaN): inverted, nearly flat or strongly stretched F."""
-    W, b, _ = newton_polar_step(X, 1.0)             # W = b X_5
-    Z, c, det_W = newton_polar_step(W, b)           # Z = c X_6
-    inv, converged = newton_polar_result(Z, c, W, det_W)
+    """``(Z, inv, converged)``: two more Newton steps from ``X = X_k`` of a first stage (``det = det
+    F``), ``X_k+2 = inv Z``, accepted as there: from ``newton_polar_start``'s X_4, steps 5 and 6.
+    Otherwise X_k+2 is meaningless (possibly NaN): inverted, nearly flat or strongly stretched F."""
+    W, b, _ = newton_polar_step(X, 1.0)             # W = b X_k+1
+    Z, c, det_W = newton_polar_step(W, b)           # Z = c X_k+2
+    inv, converged, _ = newton_polar_result(Z, c, W, det_W)
     return Z, inv, det > 0.0 and converged
 
 
@@ -302,7 +338,7 @@ def newton_polar_rotation(F):
     Otherwise R is meaningless (possibly NaN): inverted, nearly flat or strongly stretched F.
     The lane loop of ``kernels.blocked.corotated_block`` takes the same two stages in two passes.
     """
-    Z, inv, det, converged = newton_polar_start(F)
+    Z, inv, det, converged, _ = newton_polar_start(F)
     X = mat3_scale_inline(Z, inv)
     if converged:
         return X, True
@@ -330,10 +366,16 @@ def jacobi_polar_rotation(F):
 
 
 @njit
-def newton_polar_start_jit(F):
-    """``(R, converged)`` of ``newton_polar_start`` as an ordinary jitted function (for tests)."""
-    Z, inv, _, converged = newton_polar_start(F)
-    return mat3_scale_inline(Z, inv), converged
+def newton_polar_start_jit(F, steps=NEWTON_FIRST_STEPS):
+    """``(R, converged, overdone)`` of ``newton_polar_start`` (``steps`` 4), ``newton_polar_start_three``
+    (3) or ``newton_polar_start_two`` (2) as an ordinary jitted function (for tests)."""
+    if steps == 2:
+        Z, inv, _, converged, overdone = newton_polar_start_two(F)
+    elif steps == 3:
+        Z, inv, _, converged, overdone = newton_polar_start_three(F)
+    else:
+        Z, inv, _, converged, overdone = newton_polar_start(F)
+    return mat3_scale_inline(Z, inv), converged, overdone
 
 
 @njit
