@@ -282,6 +282,17 @@ def newton_polar_result(Z, c, W, det_W):
 
 
 @njit_inline
+def newton_polar_settle(Z, c):
+    """``(Z, inv, det, converged, overdone)``: the last two Newton steps of a stage from ``Z = c
+    X_k`` (``det = det Z``, of the input), ``X_k+2 = inv Z``, and ``newton_polar_result``'s verdict
+    on them.  Every stage ends with it."""
+    W, b, det = newton_polar_step(Z, c)             # W = b X_k+1
+    Z, c, det_W = newton_polar_step(W, b)           # Z = c X_k+2
+    inv, converged, overdone = newton_polar_result(Z, c, W, det_W)
+    return Z, inv, det, converged, overdone
+
+
+@njit_inline
 def newton_polar_start(F):
     """``(Z, inv, det, converged, overdone)``: the first ``NEWTON_FIRST_STEPS`` steps of Newton's
     polar iteration from ``X = F``, ``X_4 = inv Z``, accepted (``converged``) when det F > 0 and
@@ -289,9 +300,7 @@ def newton_polar_start(F):
     have been accepted too.  ``newton_polar_finish`` goes on from ``X_4`` and ``det = det F``."""
     Z, c, det = newton_polar_step(F, 1.0)
     Z, c, _ = newton_polar_step(Z, c)
-    W, b, _ = newton_polar_step(Z, c)               # W = b X_3
-    Z, c, det_W = newton_polar_step(W, b)           # Z = c X_4
-    inv, converged, overdone = newton_polar_result(Z, c, W, det_W)
+    Z, inv, _, converged, overdone = newton_polar_settle(Z, c)
     return Z, inv, det, det > 0.0 and converged, det > 0.0 and overdone
 
 
@@ -300,9 +309,7 @@ def newton_polar_start_three(F):
     """``newton_polar_start`` with three steps, ``X_3 = inv Z``: the tets of a smaller strain (F =
     Q (I + a G), G standard normal, 4000 samples: all of them up to a = 5e-3, 94 % at 1e-2)."""
     Z, c, det = newton_polar_step(F, 1.0)
-    W, b, _ = newton_polar_step(Z, c)               # W = b X_2
-    Z, c, det_W = newton_polar_step(W, b)           # Z = c X_3
-    inv, converged, overdone = newton_polar_result(Z, c, W, det_W)
+    Z, inv, _, converged, overdone = newton_polar_settle(Z, c)
     return Z, inv, det, det > 0.0 and converged, det > 0.0 and overdone
 
 
@@ -310,9 +317,7 @@ def newton_polar_start_three(F):
 def newton_polar_start_two(F):
     """``newton_polar_start`` with two steps, ``X_2 = inv Z``: the tets of a still smaller strain, as
     in a steel part (all of them up to a = 1e-4, 65 % at 2e-4)."""
-    W, b, det = newton_polar_step(F, 1.0)           # W = b X_1
-    Z, c, det_W = newton_polar_step(W, b)           # Z = c X_2
-    inv, converged, overdone = newton_polar_result(Z, c, W, det_W)
+    Z, inv, det, converged, overdone = newton_polar_settle(F, 1.0)
     return Z, inv, det, det > 0.0 and converged, det > 0.0 and overdone
 
 
@@ -321,9 +326,7 @@ def newton_polar_finish(X, det):
     """``(Z, inv, converged)``: two more Newton steps from ``X = X_k`` of a first stage (``det = det
     F``), ``X_k+2 = inv Z``, accepted as there: from ``newton_polar_start``'s X_4, steps 5 and 6.
     Otherwise X_k+2 is meaningless (possibly NaN): inverted, nearly flat or strongly stretched F."""
-    W, b, _ = newton_polar_step(X, 1.0)             # W = b X_k+1
-    Z, c, det_W = newton_polar_step(W, b)           # Z = c X_k+2
-    inv, converged, _ = newton_polar_result(Z, c, W, det_W)
+    Z, inv, _, converged, _ = newton_polar_settle(X, 1.0)
     return Z, inv, det > 0.0 and converged
 
 
