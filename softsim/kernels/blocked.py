@@ -89,8 +89,8 @@ from ..mesh.reorder import SLABS
 from .jit import njit, njit_inline
 from .mat3 import (mat3_cofactor_inline, mat3_ddot_inline, mat3_det_inline, mat3_mul_inline,
                    mat3_mul_transpose_b_inline, mat3_scale_inline)
-from .polar3 import (NEWTON_FIRST_STEPS, jacobi_rotation_and_stretch, newton_polar_finish, newton_polar_start,
-                     newton_polar_start_three, newton_polar_start_two)
+from .polar3 import (NEWTON_FIRST_STEPS, NEWTON_MIN_FIRST_STEPS, jacobi_rotation_and_stretch, newton_polar_finish,
+                     newton_polar_start, newton_polar_start_three, newton_polar_start_two)
 from .rotated_rest import TRIANGULAR_ENTRIES, triangular_rest_inverse, triangular_rest_inverses
 from .simd import (CACHE_LINE_BYTES, FORCE_COLUMNS, add_corner_force, gather_corner_rows, prefer_wide_vectors,
                    prefetch_line)
@@ -115,7 +115,6 @@ SCRATCH_ROWS = ROW_REST + REST_ROWS   # rows of the step's scratch buffer, compu
 STAGE_DONE = 0.0           # corotated, row ROW_STAGE: forces stored
 STAGE_NEWTON = 1.0         # Newton's last two steps to take (det F > 0, the first steps did not settle)
 STAGE_JACOBI = 2.0         # the Jacobi SVD to take (det F <= 0, or Newton did not converge)
-MIN_FIRST_STEPS = 2        # corotated: the fewest first steps of Newton's iteration a block takes
 
 
 REST_FRAME_INVARIANT_IDS = tuple(MODEL_IDS[name] for name in REST_FRAME_INVARIANT)
@@ -893,12 +892,12 @@ def corotated_block(rest, buf, lam, mu, upcoming, first_steps=NEWTON_FIRST_STEPS
 def next_first_steps(first_steps, newton, unsettled):
     """The first steps of Newton's iteration for a block's next step (``corotated_block``), from this
     step's ``first_steps``, its lanes sent to the second stage (``newton``, inverted ones not
-    counted) and its lanes not ``overdone`` (``unsettled``, inverted ones not counted): between 2 and
-    ``polar3.NEWTON_FIRST_STEPS``."""
+    counted) and its lanes not ``overdone`` (``unsettled``, inverted ones not counted): between
+    ``polar3.NEWTON_MIN_FIRST_STEPS`` and ``polar3.NEWTON_FIRST_STEPS``."""
     if newton > 0:
         return min(first_steps + 1, NEWTON_FIRST_STEPS)
     if unsettled == 0:
-        return max(first_steps - 1, MIN_FIRST_STEPS)
+        return max(first_steps - 1, NEWTON_MIN_FIRST_STEPS)
     return first_steps
 
 

@@ -69,6 +69,9 @@ NEWTON_ITERATIONS = 6      # documents the code: the steps are written out (newt
 # of F = Q (I + a G) accepted after 4 steps (2 x 10^4 samples each): all up to a = 0.02, 99.98 % at
 # 0.05, 79 % at 0.1; the rest go on to 6 steps.
 NEWTON_FIRST_STEPS = 4     # documents the code (newton_polar_start)
+# The fewest first steps a block of small strains takes (newton_polar_start_two; a block's count
+# adapts between the two: kernels.blocked.next_first_steps).
+NEWTON_MIN_FIRST_STEPS = 2
 # Largest last Newton step (Frobenius norm of X_k - X_k-1) accepted as converged: the error left in
 # R is about half its square, 5e-15.
 NEWTON_STEP_TOLERANCE = 1e-7
