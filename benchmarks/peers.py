@@ -4,7 +4,7 @@
   fields and one kernel per step that clears the forces, computes each tet's StVK forces and
   ``atomic_add``s them to its corners, then moves the vertices.
 - Warp, CPU backend (one thread): the documented kernel style, an element kernel with
-  ``wp.atomic_add`` scatter and an integration kernel, launched every step.
+  ``wp.atomic_add`` scatter and an integration kernel, launched every step (recorded launches).
 
 Both compute ``H = -V0 P(F) Dm^-T`` with StVK ``P = F (lam tr(E) I + 2 mu E)``, symplectic Euler
 ``v += dt (f / m + g)``, ``x += dt v``, held vertices at rest: the same system as softsim, so
@@ -199,15 +199,20 @@ class Warp:
         self.dt, self.lam, self.mu = wp.float64(a["dt"]), wp.float64(a["lam"]), wp.float64(a["mu"])
         self.tet_count = len(a["tets"])
         self.node_count = len(a["x"])
+        # Launches recorded once and replayed (``record_cmd``, Warp's way to cut launch overhead):
+        # 1.18x launching anew every step at 10k tets, 1.05x at 100k (interleaved, one process).
+        self.launches = (
+            wp.launch(self.eval_tets, dim=self.tet_count, device=d, record_cmd=True,
+                      inputs=[self.x, self.tets, self.Dm_inv, self.vol, self.lam, self.mu, self.f]),
+            wp.launch(self.integrate, dim=self.node_count, device=d, record_cmd=True,
+                      inputs=[self.x, self.v, self.f, self.inv_mass, self.held, self.g, self.dt]))
 
     def run(self, steps):
-        wp = self.wp
+        forces, update = self.launches
         for _ in range(steps):
-            wp.launch(self.eval_tets, dim=self.tet_count, device="cpu",
-                      inputs=[self.x, self.tets, self.Dm_inv, self.vol, self.lam, self.mu, self.f])
-            wp.launch(self.integrate, dim=self.node_count, device="cpu",
-                      inputs=[self.x, self.v, self.f, self.inv_mass, self.held, self.g, self.dt])
-        wp.synchronize_device("cpu")
+            forces.launch()
+            update.launch()
+        self.wp.synchronize_device("cpu")
 
     def positions(self):
         return self.x.numpy().astype(np.float64).reshape(-1, 3)
