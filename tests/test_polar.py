@@ -14,10 +14,10 @@ import pytest
 
 import naive
 from softsim.kernels.blocked import (BLOCK, FALLBACK_VECTOR_MIN_LANES, NEWTON_VECTOR_MIN_LANES, ROW_F,
-                                     ROW_TRIANGULAR_VOLUME, ROW_X, ROWS, TRIANGULAR_REST_ROWS, corotated_block,
-                                     lanes_per_group)
-from softsim.kernels.polar3 import (NEWTON_STEP_TOLERANCE, jacobi_polar_rotation, newton_polar_rotation_jit,
-                                   newton_polar_start_jit, polar_rotation)
+                                     ROW_STAGE, ROW_TRIANGULAR_VOLUME, ROW_X, ROWS, STAGE_JACOBI,
+                                     TRIANGULAR_REST_ROWS, corotated_block, lanes_per_group)
+from softsim.kernels.polar3 import (NEWTON_STEP_TOLERANCE, jacobi_polar_rotation, newton_polar_finish,
+                                   newton_polar_rotation_jit, newton_polar_start_jit, polar_rotation)
 from softsim.kernels.rotated_rest import triangular_rest_inverses
 from softsim.materials.models import corotated_energy_density, corotated_first_piola, model_lame_parameters
 from test_blocked_kernels import Body
@@ -255,6 +255,14 @@ def second_stage_F(rng):
             return F
 
 
+def newton_settles(F, first_steps):
+    """Whether Newton's ``first_steps`` first steps and, where they do not settle F, its two last
+    ones, settle F (per tet): the lanes of ``corotated_block`` that it does not leave to the Jacobi
+    SVD."""
+    X, converged, _ = newton_polar_start_jit(tuple(F.ravel()), first_steps)
+    return converged or newton_polar_finish(X, np.linalg.det(F))[2]
+
+
 @pytest.mark.parametrize("rest_frame", [False, True])
 @pytest.mark.parametrize("second_stage, fallbacks, first_steps", [
     (0, 0, 4), (3, 0, 4), (NEWTON_VECTOR_MIN_LANES + 1, 0, 4), (0, 3, 4), (5, 3, 4),
@@ -299,6 +307,9 @@ def test_lane_loop_gives_the_per_tet_law(second_stage, fallbacks, rest_frame, fi
     for j in range(BLOCK):
         A = np.array([[a[j, 0], a[j, 1], a[j, 2]], [0.0, a[j, 3], a[j, 4]], [0.0, 0.0, a[j, 5]]])
         F_r = Fs[j] @ Dms[j] @ A                             # F Q: what the lane loop sees
+        # the second stage went on from the first stage's iterate: had it not, the lane would
+        # have gone on to the Jacobi SVD, whose forces are as right
+        assert (buf[ROW_STAGE * BLOCK + j] == STAGE_JACOBI) == (not newton_settles(F_r, first_steps)), j
         H = P_of(F_r) @ A.T
         # with a rest frame, F_r is formed in the lane (with FMAs) and in NumPy to round-off apart,
         # which an inverted lane's ill-conditioned rotation amplifies: 1e-14 of the force measured

@@ -741,8 +741,8 @@ def lane_store_corotated_forces(rest, l, buf, j, F, Z, inv, lam, mu):
 
 @njit_inline
 def lane_store_newton(buf, j, Z, inv, det):
-    """Keep lane ``j``'s ``X_4 = inv Z`` (as Z and inv) and det F in rows ``ROW_NEWTON..`` for the
-    second stage."""
+    """Keep lane ``j``'s ``X_k = inv Z`` of the first stage (as Z and inv) and det F in rows
+    ``ROW_NEWTON..`` for the second stage."""
     for k in range(9):
         buf[(ROW_NEWTON + k) * BLOCK + j] = Z[k]
     buf[(ROW_NEWTON + 9) * BLOCK + j] = inv
@@ -751,7 +751,7 @@ def lane_store_newton(buf, j, Z, inv, det):
 
 @njit_inline
 def lane_load_newton(buf, j):
-    """Lane ``j``'s ``X_4`` from rows ``ROW_NEWTON..`` (9-tuple)."""
+    """Lane ``j``'s ``X_k`` of the first stage from rows ``ROW_NEWTON..`` (9-tuple)."""
     return mat3_scale_inline(
         (buf[ROW_NEWTON * BLOCK + j], buf[(ROW_NEWTON + 1) * BLOCK + j], buf[(ROW_NEWTON + 2) * BLOCK + j],
          buf[(ROW_NEWTON + 3) * BLOCK + j], buf[(ROW_NEWTON + 4) * BLOCK + j], buf[(ROW_NEWTON + 5) * BLOCK + j],
@@ -790,6 +790,9 @@ def corotated_block(rest, buf, lam, mu, upcoming, first_steps=NEWTON_FIRST_STEPS
     gets the per-tet law's forces to round-off.  rest: a block's rest rows in the triangular form
     (``F_r``, ``lane_rotated_deformation_gradient``).
 
+    The first stage keeps each lane's iterate for the second, except with two steps: there the lanes
+    sent on redo their first steps.
+
     Returns the first steps for the block's next step (``next_first_steps``): one more (4 at most)
     where a lane that is not inverted needed the second stage, one fewer (2 at least) where every
     such lane would have settled with one step fewer (``polar3.NEWTON_STEP_OVERDONE``).  A step
@@ -811,7 +814,6 @@ def corotated_block(rest, buf, lam, mu, upcoming, first_steps=NEWTON_FIRST_STEPS
                 F = lane_rotated_deformation_gradient(group, l, buf, j)
                 Z, inv, det, converged, overdone = newton_polar_start_two(F)
                 lane_store_corotated_forces(group, l, buf, j, F, Z, inv, lam, mu)
-                lane_store_newton(buf, j, Z, inv, det)
                 stage = STAGE_DONE if converged else (STAGE_NEWTON if det > 0.0 else STAGE_JACOBI)
                 buf[ROW_STAGE * BLOCK + j] = stage
                 pending += 1 if stage != STAGE_DONE else 0
@@ -847,6 +849,19 @@ def corotated_block(rest, buf, lam, mu, upcoming, first_steps=NEWTON_FIRST_STEPS
     newton = 0
     for j in range(BLOCK):
         newton += 1 if buf[ROW_STAGE * BLOCK + j] == STAGE_NEWTON else 0
+    if first_steps == 2 and newton > 0:
+        # The two-step loop keeps no iterate: a block takes two steps only after a step that sent
+        # no lane to the second stage, so its lanes rarely need one, and the 11 stores a lane took
+        # a tenth of its time (benchmarks/NOTES.md).  The few lanes that do need it redo their
+        # first steps, to the same bits.
+        for g in range(BLOCK // lanes):
+            group = rest[g]
+            for l in range(lanes):                # packed SIMD over all lanes, stores masked
+                j = g * lanes + l
+                if buf[ROW_STAGE * BLOCK + j] == STAGE_NEWTON:
+                    F = lane_rotated_deformation_gradient(group, l, buf, j)
+                    Z, inv, det, _, _ = newton_polar_start_two(F)
+                    lane_store_newton(buf, j, Z, inv, det)
     if newton > NEWTON_VECTOR_MIN_LANES:
         # Written out, not a call of lane_finish_newton: through that njit_inline helper this loop
         # compiled to scalar code (50 ns a lane of the block against 60 ns a listed scalar lane).
