@@ -83,8 +83,8 @@ def _taichi_kernel(threads):
 
 
 class Taichi:
-    """The beam's state in Taichi fields of its own (an SNode tree a mesh, kept until the process
-    ends: about 110 B a tet)."""
+    """The beam's state in Taichi fields of its own (an SNode tree a mesh, about 110 B a tet, freed
+    by ``close``)."""
     name = "taichi"
 
     def __init__(self, arrays, threads=2):
@@ -121,6 +121,10 @@ class Taichi:
 
     def positions(self):
         return self.x.to_numpy()
+
+    def close(self):
+        """Free the fields (Taichi keeps an SNode tree until it is destroyed or the process ends)."""
+        self.fields.destroy()
 
 
 # ---------------------------------------------------------------------------------------------

@@ -59,6 +59,8 @@ def peer_check(tets, threads):
         peer = peers.Taichi(arrays, threads) if name == "taichi" else peers.Warp(arrays)
         peer.run(CHECK_STEPS)
         diff = float(np.abs(peer.positions() - reference).max())
+        if hasattr(peer, "close"):
+            peer.close()
         rows.append(row("check", "same answer", sim.tet_count, name, ratio=diff / displacement, ratio_to="max displacement",
                         note=f"max abs(x - x_softsim) = {diff:.2e} m after {CHECK_STEPS} steps, float64 "
                              f"(displacement {displacement:.2e} m)"))
@@ -85,6 +87,8 @@ def throughput(sizes, seconds, repeats, threads, stream):
             runners["warp"] = peers.Warp(arrays)
         runners["bound"] = lambda: stream.bound(2) / 1e6
         rates = interleaved(runners, seconds, repeats)
+        if "taichi" in runners:
+            runners["taichi"].close()
         tets = runners["softsim"].tet_count
         med = {k: statistics.median(v) for k, v in rates.items()}
         log(f"  {tets:>9} tets: " + ", ".join(f"{k} {v:.1f}" for k, v in med.items()))
