@@ -87,8 +87,9 @@ def throughput(sizes, seconds, repeats, threads, stream):
             runners["warp"] = peers.Warp(arrays)
         runners["bound"] = lambda: stream.bound(2) / 1e6
         rates = interleaved(runners, seconds, repeats)
-        if "taichi" in runners:
-            runners["taichi"].close()
+        for runner in runners.values():
+            if hasattr(runner, "close"):          # a peer holding memory of its own (Taichi's fields)
+                runner.close()
         tets = runners["softsim"].tet_count
         med = {k: statistics.median(v) for k, v in rates.items()}
         log(f"  {tets:>9} tets: " + ", ".join(f"{k} {v:.1f}" for k, v in med.items()))

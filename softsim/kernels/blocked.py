@@ -853,7 +853,9 @@ def corotated_block(rest, buf, lam, mu, upcoming, first_steps=NEWTON_FIRST_STEPS
         # The two-step loop keeps no iterate: a block takes two steps only after a step that sent
         # no lane to the second stage, so its lanes rarely need one, and the 11 stores a lane took
         # a tenth of its time (benchmarks/NOTES.md).  The few lanes that do need it redo their
-        # first steps, to the same bits.
+        # first steps, to the same bits.  A loop of its own: folded into the second stage's loops
+        # (``if first_steps == 2`` there, the iterate loaded otherwise) the second stage of four-step
+        # blocks ran 1.05-1.08x as long, the two-step blocks no faster (one process, one thread).
         for g in range(BLOCK // lanes):
             group = rest[g]
             for l in range(lanes):                # packed SIMD over all lanes, stores masked
