@@ -21,6 +21,7 @@ from softsim.kernels.blocked import (BLOCK, PREFETCH_BLOCKS_AHEAD, PREFETCH_FROM
                                      cache_aligned_scratch, first_uses, gather_corners, owned_vertex_runs,
                                      prefetching, rest_from_corners_block, triangular_rest_from_corners_block,
                                      uses_triangular_rest)
+from softsim.kernels.jit import CompileTimeConstant
 from softsim.kernels.rest_state import rest_state, vertex_tet_csr
 from softsim.kernels.simd import CACHE_LINE_BYTES
 from softsim.materials.models import MODEL_IDS, model_lame_parameters
@@ -64,9 +65,10 @@ class Body:
         v = np.zeros_like(x)
         blocks, colour_offsets, scatter, offsets, slots, vf, corner = step_arguments(self, work_buffer(self))
         no_hold = np.zeros((n, 3), dtype=np.bool_)
-        advance(x, None, v, 0, 1, 1.0, blocks, colour_offsets, scatter, MODEL_IDS[model], lam, mu, offsets, slots,
-                vf, corner, np.ones(n) if inv_mass is None else inv_mass, gravity, external_accel, no_hold, x.copy(),
-                np.zeros((n, 3)), None, None, None, numba.get_num_threads() if chunks is None else chunks)
+        advance(x, None, v, 0, 1, 1.0, blocks, colour_offsets, scatter, CompileTimeConstant(MODEL_IDS[model]), lam,
+                mu, offsets, slots, vf, corner, np.ones(n) if inv_mass is None else inv_mass, gravity,
+                external_accel, no_hold, x.copy(), np.zeros((n, 3)), None, None, None,
+                numba.get_num_threads() if chunks is None else chunks)
         return v
 
 

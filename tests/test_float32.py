@@ -14,6 +14,7 @@ from softsim.config import parse_scene
 from softsim.config.schema import FLOAT32_MODELS
 from softsim.errors import ConfigError
 from softsim.integrators.symplectic_euler import SinglePrecisionWork, advance, step_arguments
+from softsim.kernels.jit import CompileTimeConstant
 from softsim.materials import models
 from softsim.materials.models import DISPLACEMENT_FORM_MODELS, MODEL_IDS, model_lame_parameters
 from softsim.model import initial_state
@@ -85,7 +86,7 @@ def float32_forces(body, u, model, lam, mu):
     v = np.zeros_like(u)
     blocks, colour_offsets, scatter, offsets, slots, vf, corner = step_arguments(body, body.work.forces)
     advance(u, body.X.astype(np.float32), v, 0, 1, np.float32(1.0), blocks, colour_offsets, scatter,
-            MODEL_IDS[model], np.float32(lam), np.float32(mu), offsets, slots, vf, corner,
+            CompileTimeConstant(MODEL_IDS[model]), np.float32(lam), np.float32(mu), offsets, slots, vf, corner,
             np.ones(n, np.float32), body.work.gravity, None, np.zeros((n, 3), np.bool_), u.copy(),
             np.zeros((n, 3), np.float32), None, None, None, 1)
     return v.astype(np.float64)

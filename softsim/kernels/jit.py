@@ -19,7 +19,9 @@ import os
 
 import llvmlite.binding
 import numba
+from numba import types
 from numba.core import event
+from numba.extending import typeof_impl
 
 # ``fastmath={"contract"}`` lets LLVM fuse a multiply and an add into one FMA (one rounding instead of
 # two) and nothing else: no reassociation, NaN and infinities kept.  Without it the lane loops of
@@ -153,6 +155,21 @@ def njit_inline(func):
 def njit_parallel(func):
     """Compile ``func`` as a cached Numba function whose ``prange`` loops run in parallel."""
     return _stamp_with_package_hash(numba.njit(parallel=True, **JIT_OPTIONS)(func))
+
+
+class CompileTimeConstant(int):
+    """An int that a jitted function taking it compiles as a constant (Numba's ``IntegerLiteral``
+    type): a specialisation per value, in which code branching on it at typing time (an
+    ``overload`` with ``prefer_literal=True``) keeps only its own branch.  A plain int compiles
+    one specialisation for every value."""
+
+    def __repr__(self):
+        return f"CompileTimeConstant({int(self)})"
+
+
+@typeof_impl.register(CompileTimeConstant)
+def _typeof_compile_time_constant(value, context):
+    return types.IntegerLiteral(int(value))
 
 
 @contextlib.contextmanager
