@@ -11,6 +11,7 @@ from functools import cached_property
 import numpy as np
 
 from .kernels.blocked import build_block_layout, faces_by_part
+from .kernels.jit import CompileTimeConstant
 from .kernels.rest_state import lumped_masses, rest_state, vertex_tet_csr
 from .materials.models import MODEL_IDS, model_lame_parameters
 from .mesh import TetMesh
@@ -31,7 +32,8 @@ class Model:
     tet_order: (m,) int64, internal tet e is the user's tet ``tet_order[e]``.
     rest_points: (n, 3) [m]; tets: (m, 4) int64; Dm_inv: (m, 3, 3) [1/m]; rest_volume: (m,) [m^3].
     mass, inv_mass: (n,) [kg], [1/kg] lumped; a vertex no tet uses has mass 0, inv_mass 0 and is held.
-    material_id: model id; lam, mu: the model's Lame parameters [Pa]; lame_hooke: (lambda, mu) of Hooke's law [Pa].
+    material_id: model id, a ``kernels.jit.CompileTimeConstant`` (the kernels it reaches compile that
+    model's law alone); lam, mu: the model's Lame parameters [Pa]; lame_hooke: (lambda, mu) of Hooke's law [Pa].
     csr_offsets (n+1,), csr_slots (4m,): vertex -> (tet, corner) map.
     boundary_faces: (b, 3) outward-wound faces; boundary_area: (n,) [m^2] a third of each adjacent face.
     gravity: (3,) [m/s^2]; traction_force: (n, 3) [N] constant; external_accel: (n, 3) = gravity + traction / m
@@ -182,7 +184,7 @@ def build_model(scene, mesh):
     part_face_offsets, part_faces = faces_by_part(faces, face_tets, blocks.part_offsets)
     return Model(
         mesh=mesh, vertex_order=vertex_order, tet_order=tet_order, rest_points=points, tets=tets, Dm_inv=Dm_inv,
-        rest_volume=rest_volume, mass=mass, inv_mass=inv_mass, material_id=MODEL_IDS[material.model],
+        rest_volume=rest_volume, mass=mass, inv_mass=inv_mass, material_id=CompileTimeConstant(MODEL_IDS[material.model]),
         lam=float(lam), mu=float(mu), csr_offsets=offsets, csr_slots=slots, boundary_faces=faces,
         boundary_area=boundary_area, gravity=gravity, traction_force=traction_force,
         external_accel=np.ascontiguousarray(external_accel), held=held, held_velocity=held_velocity, fixed=fixed,

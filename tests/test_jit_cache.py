@@ -164,14 +164,28 @@ ONE_MODEL_SCRIPT = textwrap.dedent("""
         blocked.model_forces(layout.rest[0], buf, model, 1.0, 1.0, None, None, np.uint8(4))
     except TypingError as exc:
         print("compile-time constant" in str(exc))
+    # the per-frame kernels: the scene's law alone for a constant, every law for an int
+    from softsim.kernels.energy import elastic_energy
+    from softsim.kernels.forces import elastic_forces
+    from softsim.kernels.rest_state import vertex_tet_csr
+    from softsim.materials import models
+    x = np.ascontiguousarray(points)
+    elastic_energy(x, tets, Dm_inv, V0, CompileTimeConstant(model), 1.0, 1.0)
+    elastic_forces(x, tets, Dm_inv, V0, CompileTimeConstant(model), 1.0, 1.0, *vertex_tet_csr(tets, len(points)))
+    laws = (models.stvk_first_piola, models.stvk_energy_density, models.corotated_first_piola,
+            models.corotated_energy_density)
+    print(*(len(law.signatures) for law in laws))
+    elastic_energy(x, tets, Dm_inv, V0, model, 1.0, 1.0)
+    print(len(models.corotated_energy_density.signatures))
 """)
 
 
 def test_the_step_compiles_its_own_model_alone(tmp_path):
-    """With the model id a ``CompileTimeConstant`` (as ``simulation.step`` passes it), the lane
-    loops of the other models are not compiled (all four in one function took a StVK scene's step
-    122 s to compile instead of 17); a plain int is refused at compile time.  A fresh process and
-    an empty cache, so that what is compiled shows in the lane loops' signatures."""
+    """With the model id a ``CompileTimeConstant`` (as ``Model.material_id`` is), the lane loops of
+    the other models are not compiled (all four in one function took a StVK scene's step 122 s to
+    compile instead of 17), nor the other laws in the per-frame kernels; the step refuses a plain
+    int at compile time, the per-frame kernels compile every law for it.  A fresh process and an
+    empty cache, so that what is compiled shows in the functions' signatures."""
     out = subprocess.run([sys.executable, "-c", ONE_MODEL_SCRIPT], capture_output=True, text=True, check=True,
                          env={**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}).stdout.split()
-    assert out[-5:] == ["1", "0", "0", "0", "True"]
+    assert out[-10:] == ["1", "0", "0", "0", "True", "1", "1", "0", "0", "1"]

@@ -9,7 +9,7 @@ in the last bits from call to call.)
 import numpy as np
 from numba import prange
 
-from ..materials.models import energy_density
+from ..materials.models import material_energy_density
 from .deformation import deformation_gradient, edge_matrix
 from .jit import njit, njit_parallel
 from .mat3 import mat3_load
@@ -26,7 +26,7 @@ def elastic_energy(x, tets, Dm_inv, rest_volume, model, lam, mu):
         total = 0.0
         for e in range(c * m // CHUNKS, (c + 1) * m // CHUNKS):
             F = deformation_gradient(edge_matrix(x, tets, e), mat3_load(Dm_inv, e))
-            total += rest_volume[e] * energy_density(model, F, lam, mu)
+            total += rest_volume[e] * material_energy_density(model, F, lam, mu)
         partial[c] = total
     return ordered_sum(partial)
 

@@ -21,7 +21,7 @@ import math
 import numpy as np
 from numba import prange
 
-from ..materials.models import LINEAR, first_piola
+from ..materials.models import LINEAR, material_first_piola
 from .deformation import deformation_gradient, edge_matrix, green_strain, small_strain
 from .jit import njit_parallel
 from .mat3 import mat3_det, mat3_load, mat3_mul_transpose_b, mat3_scale, mat3_trace
@@ -57,7 +57,7 @@ def tet_fields_kernel(x, tets, Dm_inv, model, lam, mu, strain, stress, pressure,
                 for c in range(3):
                     strain[e, r, c] = E[3 * r + c]
         if need_sigma:
-            P = first_piola(model, F, lam, mu)
+            P = material_first_piola(model, F, lam, mu)
             sigma = P if model == LINEAR else mat3_scale(mat3_mul_transpose_b(P, F), 1.0 / det)
             p = -mat3_trace(sigma) / 3.0
             if want_stress:

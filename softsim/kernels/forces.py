@@ -9,7 +9,7 @@ contributions in the same order on every run (deterministic bits).
 import numpy as np
 from numba import prange
 
-from ..materials.models import first_piola
+from ..materials.models import material_first_piola
 from .deformation import deformation_gradient, edge_matrix
 from .jit import njit, njit_parallel
 from .mat3 import mat3_load, mat3_mul_transpose_b
@@ -24,7 +24,7 @@ def tet_corner_forces(x, tets, Dm_inv, rest_volume, e, model, lam, mu, out):
     """
     Dmi = mat3_load(Dm_inv, e)
     F = deformation_gradient(edge_matrix(x, tets, e), Dmi)
-    P = first_piola(model, F, lam, mu)
+    P = material_first_piola(model, F, lam, mu)
     H = mat3_mul_transpose_b(P, Dmi)          # P Dm^-T
     w = -rest_volume[e]
     for c in range(3):

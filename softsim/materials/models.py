@@ -21,6 +21,8 @@ strain all four reduce to isotropic Hooke's law with the scene's E and nu.
 import math
 
 import numpy as np
+from numba import types
+from numba.extending import overload
 
 from ..kernels.deformation import green_strain, small_strain
 from ..kernels.jit import njit
@@ -253,3 +255,38 @@ def energy_density(model, F, lam, mu):
     elif model == COROTATED:
         return corotated_energy_density(F, lam, mu)
     return linear_energy_density(F, lam, mu)
+
+
+# The same in the per-frame kernels, whose callers pass the model id as a compile-time constant
+# (``kernels.jit.CompileTimeConstant``): a kernel then compiles its scene's law alone (corotated's
+# polar decomposition took 20-30 s of a StVK scene's cold start).  A plain int compiles them all.
+
+def material_first_piola(model, F, lam, mu):
+    """``first_piola``; compiled code only (``_material_law``)."""
+    raise NotImplementedError("material_first_piola runs in compiled code only")
+
+
+def material_energy_density(model, F, lam, mu):
+    """``energy_density``; compiled code only (``_material_law``)."""
+    raise NotImplementedError("material_energy_density runs in compiled code only")
+
+
+def _material_law(every_model, laws):
+    """The overload of a law taking ``(model, F, lam, mu)``: ``laws[model]`` alone for a constant
+    ``model`` (compiled before the implementation calling it is typed, as ``kernels.blocked``'s
+    lane loops are), ``every_model`` for an int."""
+    def implementation(model, F, lam, mu):
+        if not isinstance(model, types.IntegerLiteral):
+            return lambda model, F, lam, mu: every_model(model, F, lam, mu)
+        law = laws[model.literal_value]
+        law.compile((F, lam, mu))
+        return lambda model, F, lam, mu: law(F, lam, mu)
+    return implementation
+
+
+overload(material_first_piola, prefer_literal=True, inline="always")(_material_law(first_piola, {
+    STVK: stvk_first_piola, NEOHOOKEAN: neohookean_first_piola, COROTATED: corotated_first_piola,
+    LINEAR: linear_first_piola}))
+overload(material_energy_density, prefer_literal=True, inline="always")(_material_law(energy_density, {
+    STVK: stvk_energy_density, NEOHOOKEAN: neohookean_energy_density, COROTATED: corotated_energy_density,
+    LINEAR: linear_energy_density}))
