@@ -16,10 +16,10 @@ force kernel takes the laws in displacement form.  ``rest`` is None in float64.
 Features a scene does not use cost nothing: ``ground`` and ``damping_factor`` are ``None`` then,
 and Numba compiles (and caches) a separate specialisation of ``advance`` in which those branches
 are pruned away; the model id comes as a compile-time constant, so that the step compiles the lane
-loop of the scene's material law alone.  Each step evaluates the corner forces of blocks of tets in vectorised code
-(``kernels.blocked``), then sums them per vertex in a fixed order (deterministic results): scattered
-one colour of slab-shaped parts at a time (or, kept for comparison, stored per (tet, corner) and
-gathered per vertex: ``kernels.blocked`` ``scatter='csr'``).
+loop of the scene's material law alone.  Each step evaluates the corner forces of blocks of tets in
+vectorised code (``kernels.blocked``), then sums them per vertex in a fixed order (deterministic
+results): scattered one colour of slab-shaped parts at a time (or, kept for comparison, stored per
+(tet, corner) and gathered per vertex: ``kernels.blocked`` ``scatter='csr'``).
 """
 
 import numpy as np
@@ -311,8 +311,8 @@ def advance(x, rest, v, step_start, step_count, dt,
     ``rest_from_points``; first_steps: (block_count,) uint8, corotated's first steps of Newton's
     iteration per block, ``kernels.blocked.corotated_block``, which adapts them step by step from
     the 4 ``step_arguments`` starts each call with); colour_offsets:
-    (colours + 1,) into colour_parts; model: the model id, a ``kernels.jit.CompileTimeConstant`` (the
-    step then compiles its lane loop alone) or an int (every model's); Lame lam, mu [Pa].
+    (colours + 1,) into colour_parts; model: the model id as a ``kernels.jit.CompileTimeConstant``
+    (the step compiles its lane loop alone; a plain int is refused at compile time); Lame lam, mu [Pa].
     scatter True: the forces are added into ``vertex_forces`` (node_count, 4: x, y, z and a zero,
     ``kernels.simd.FORCE_COLUMNS``), one colour of parts
     at a time, its parts in parallel; False: stored into ``corner_forces`` (tet_count, 4, 3) and
