@@ -72,6 +72,10 @@ class Model:
     part_faces: np.ndarray = None
     precision: str = "float64"    # of the step (its blocks; the state stays float64); the model's arrays are float64
 
+    def __post_init__(self):
+        # also for a model made by ``dataclasses.replace`` with a plain int
+        object.__setattr__(self, "material_id", CompileTimeConstant(self.material_id))
+
     @cached_property
     def has_tractions(self):
         """Whether any vertex carries a traction force; without, the step reads ``gravity`` alone,
@@ -184,7 +188,7 @@ def build_model(scene, mesh):
     part_face_offsets, part_faces = faces_by_part(faces, face_tets, blocks.part_offsets)
     return Model(
         mesh=mesh, vertex_order=vertex_order, tet_order=tet_order, rest_points=points, tets=tets, Dm_inv=Dm_inv,
-        rest_volume=rest_volume, mass=mass, inv_mass=inv_mass, material_id=CompileTimeConstant(MODEL_IDS[material.model]),
+        rest_volume=rest_volume, mass=mass, inv_mass=inv_mass, material_id=MODEL_IDS[material.model],
         lam=float(lam), mu=float(mu), csr_offsets=offsets, csr_slots=slots, boundary_faces=faces,
         boundary_area=boundary_area, gravity=gravity, traction_force=traction_force,
         external_accel=np.ascontiguousarray(external_accel), held=held, held_velocity=held_velocity, fixed=fixed,

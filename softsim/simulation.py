@@ -24,7 +24,7 @@ from .integrators.timestep import (AUTO_EIGEN_ITERATIONS, AUTO_EIGEN_MIN_STEPS, 
 from .io.hdf5 import RunWriter, check_writable, frames_written, free_bytes, read_resume_state
 from .kernels.energy import elastic_energy, gravity_energy, kinetic_energy
 from .kernels.fields import tet_fields
-from .kernels.jit import CompileTimeConstant, compile_timer, threading_layer
+from .kernels.jit import compile_timer, threading_layer
 from .mesh import build_mesh
 from .model import State, build_model, initial_state
 
@@ -209,12 +209,10 @@ def step(model, state, dt, step_count, damping, work):
     numba.set_num_threads(threads)
     one_region = PART_SCHEDULE.one_region()
     try:
-        # the model a constant: the step compiles its own model's lane loop alone
         long_waits = advance(x, rest, v, state.step, step_count, dt,
-                             blocks, colour_offsets, scatter, CompileTimeConstant(model.material_id), lam, mu,
-                             offsets, slots, vertex_forces, corner, inv_mass, gravity, external_accel, model.held,
-                             held_start, held_velocity, *model.ground_arguments(), damping_factor, threads,
-                             one_region)
+                             blocks, colour_offsets, scatter, model.material_id, lam, mu, offsets, slots,
+                             vertex_forces, corner, inv_mass, gravity, external_accel, model.held, held_start,
+                             held_velocity, *model.ground_arguments(), damping_factor, threads, one_region)
     finally:
         numba.set_num_threads(available)
     PART_SCHEDULE.record(one_region, long_waits, step_count * (colour_offsets[-1] if scatter else 0))
