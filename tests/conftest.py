@@ -13,6 +13,7 @@ Relative ``mesh.file`` paths are resolved against the test's ``tmp_path``.
 """
 
 import copy
+import os
 
 import pytest
 
@@ -73,3 +74,14 @@ def no_written_file_holds_non_finite_values(request):
             continue   # a test's deliberately broken or foreign file
         with f:
             f.visititems(check)
+
+
+def pytest_collection_modifyitems(config, items):
+    """Tests marked ``slow`` (pyproject's marker) run only with SOFTSIM_SLOW=1: more variants of a
+    check that CI runs in one or two, each compiling a step of its own."""
+    if os.environ.get("SOFTSIM_SLOW"):
+        return
+    skip = pytest.mark.skip(reason="slow: set SOFTSIM_SLOW=1")
+    for item in items:
+        if "slow" in item.keywords:
+            item.add_marker(skip)

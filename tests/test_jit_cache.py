@@ -9,7 +9,7 @@ import textwrap
 SCRIPT = textwrap.dedent("""
     import numpy as np
     from softsim.config import parse_scene
-    from softsim.integrators.symplectic_euler import advance
+    from softsim.integrators.symplectic_euler import advance_colour
     from softsim.model import initial_state
     from softsim.simulation import prepare, step
 
@@ -20,7 +20,7 @@ SCRIPT = textwrap.dedent("""
     prepared = prepare(scene)
     state = initial_state(scene, prepared.model)
     step(prepared.model, state, prepared.plan.dt, 3, 0.0, np.empty((prepared.model.tet_count, 4, 3)))
-    print(sum(advance.stats.cache_hits.values()), sum(advance.stats.cache_misses.values()))
+    print(sum(advance_colour.stats.cache_hits.values()), sum(advance_colour.stats.cache_misses.values()))
 """)
 
 

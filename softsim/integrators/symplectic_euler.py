@@ -295,11 +295,10 @@ def part_step(x, rest, v, step_start, step, dt, blocks, part, model, lam, mu, ve
                        vertex_forces, corner_forces, scratch[part * SCRATCH:(part + 1) * SCRATCH])
 
 
-@njit_parallel
 def advance(x, rest, v, step_start, step_count, dt,
             blocks, colour_offsets, scatter, model, lam, mu, offsets, slots, vertex_forces, corner_forces,
             inv_mass, gravity, external_accel, held, held_start, held_velocity,
-            ground, ground_faces, damping_factor, threads, one_region=True):
+            ground, ground_faces, damping_factor, threads, one_region):
     """Advance positions ``x`` and velocities ``v`` (node_count, 3) [m, m/s] in place by ``step_count`` steps.
 
     rest: None; or, in float32, the rest positions (n, 3) [m], ``x`` then holding displacements
@@ -315,8 +314,11 @@ def advance(x, rest, v, step_start, step_count, dt,
     (the step compiles its lane loop alone; a plain int is refused at compile time); Lame lam, mu [Pa].
     scatter True: the forces are added into ``vertex_forces`` (node_count, 4: x, y, z and a zero,
     ``kernels.simd.FORCE_COLUMNS``), one colour of parts
-    at a time, its parts in parallel; False: stored into ``corner_forces`` (tet_count, 4, 3) and
-    gathered per vertex through the vertex -> (tet, corner) map ``offsets`` (n+1,), ``slots`` (4m,).
+    at a time, its parts in parallel (``advance_colour``); False: stored into ``corner_forces``
+    (tet_count, 4, 3) and gathered per vertex through the vertex -> (tet, corner) map ``offsets``
+    (n+1,), ``slots`` (4m,) (``advance_csr``: kept for comparison, and compiled only where asked
+    for; with it in the same compiled function, each specialisation of the step took a third
+    longer to compile, 15.7 s against 20.5 s for a second one of StVK).
     The colour scatter moves each part's vertices (``BlockLayout.owned_runs``) at the start of the
     part's next step (``part_step``), and all of them after the last step: one wait per colour and
     step, none for the vertex update.  one_region: the parts of every step in one parallel region,
@@ -342,66 +344,94 @@ def advance(x, rest, v, step_start, step_count, dt,
     to zero (``kernels.simd.flush_subnormals``: in float32 the front of a wave is made of them, and
     each cost a microcode assist), each thread's control word restored after its part or chunk.
     """
+    driver = advance_colour if scatter else advance_csr
+    return driver(x, rest, v, step_start, step_count, dt, blocks, colour_offsets, model, lam, mu, offsets, slots,
+                  vertex_forces, corner_forces, inv_mass, gravity, external_accel, held, held_start, held_velocity,
+                  ground, ground_faces, damping_factor, threads, one_region)
+
+
+@njit
+def zeroed_counters():
+    """``advance``'s counters, zeroed (a serial function: in ``advance_colour`` Numba would make
+    ``np.zeros`` a parallel loop of its own, to compile)."""
+    return np.zeros(3 * COUNTER_STRIDE, dtype=np.int64)
+
+
+@njit_parallel
+def advance_colour(x, rest, v, step_start, step_count, dt, blocks, colour_offsets, model, lam, mu, offsets, slots,
+                   vertex_forces, corner_forces, inv_mass, gravity, external_accel, held, held_start, held_velocity,
+                   ground, ground_faces, damping_factor, threads, one_region):
+    """``advance`` with the colour scatter (``scatter`` True)."""
+    node_count = x.shape[0]
+    part_offsets = blocks[3]
+    colour_parts = blocks[4]
+    # a scratch buffer per part, made once per call, not per part and step
+    scratch = cache_aligned_scratch(max(part_offsets.shape[0] - 1, threads) * SCRATCH, blocks[1])
+    for i in prange(node_count):
+        for k in range(FORCE_COLUMNS):
+            vertex_forces[i, k] = 0.0
+        if ground is not None:
+            ground[3][i] = 0.0
+    counters = zeroed_counters()
+    if one_region:
+        # every part of every step in one region: each thread takes the next part in (step,
+        # colour) order and first waits until every part of the colours before it is done
+        part_count = colour_parts.shape[0]
+        task_count = step_count * part_count
+        for chunk in prange(threads):
+            control = flush_subnormals()
+            while True:
+                task = fetch_add(counters, TAKEN, 1)
+                if task >= task_count:
+                    break
+                k = task % part_count
+                colour = 0
+                while colour_offsets[colour + 1] <= k:
+                    colour += 1
+                wait_until_done(counters, task - k + colour_offsets[colour])
+                part_step(x, rest, v, step_start, step_start + task // part_count, dt, blocks, colour_parts[k],
+                          model, lam, mu, vertex_forces, corner_forces, inv_mass, gravity, external_accel,
+                          held, held_start, held_velocity, ground, ground_faces, damping_factor, scratch)
+                fetch_add(counters, DONE, 1)
+            restore_float_control(control)
+    else:
+        for step in range(step_start, step_start + step_count):
+            for colour in range(colour_offsets.shape[0] - 1):
+                for k in prange(colour_offsets[colour], colour_offsets[colour + 1]):
+                    control = flush_subnormals()
+                    part_step(x, rest, v, step_start, step, dt, blocks, colour_parts[k],
+                              model, lam, mu, vertex_forces, corner_forces, inv_mass, gravity, external_accel,
+                              held, held_start, held_velocity, ground, ground_faces, damping_factor, scratch)
+                    restore_float_control(control)
+    if step_count > 0:
+        chunks = min(threads, node_count)
+        for chunk in prange(chunks):
+            control = flush_subnormals()
+            for i in range(chunk * node_count // chunks, (chunk + 1) * node_count // chunks):
+                update_from_forces(x, rest, v, vertex_forces, i, dt, (step_start + step_count) * dt, inv_mass,
+                                   gravity, external_accel, held, held_start, held_velocity, ground,
+                                   damping_factor)
+            restore_float_control(control)
+    return counters[LONG_WAITS]
+
+
+@njit_parallel
+def advance_csr(x, rest, v, step_start, step_count, dt, blocks, colour_offsets, model, lam, mu, offsets, slots,
+                vertex_forces, corner_forces, inv_mass, gravity, external_accel, held, held_start, held_velocity,
+                ground, ground_faces, damping_factor, threads, one_region):
+    """``advance`` with the forces stored per (tet, corner) and gathered per vertex (``scatter`` False)."""
     node_count = x.shape[0]
     block_count = blocks[0].shape[0]
     part_offsets = blocks[3]
-    colour_parts = blocks[4]
-    # a scratch buffer per part (colour) or chunk (csr), made once per call, not per part and step
+    # a scratch buffer per chunk, made once per call
     scratch = cache_aligned_scratch(max(part_offsets.shape[0] - 1, threads) * SCRATCH, blocks[1])
-    if scatter:
-        for i in prange(node_count):
-            for k in range(FORCE_COLUMNS):
-                vertex_forces[i, k] = 0.0
-            if ground is not None:
-                ground[3][i] = 0.0
-        counters = np.zeros(3 * COUNTER_STRIDE, dtype=np.int64)
-        if one_region:
-            # every part of every step in one region: each thread takes the next part in (step,
-            # colour) order and first waits until every part of the colours before it is done
-            part_count = colour_parts.shape[0]
-            task_count = step_count * part_count
-            for chunk in prange(threads):
-                control = flush_subnormals()
-                while True:
-                    task = fetch_add(counters, TAKEN, 1)
-                    if task >= task_count:
-                        break
-                    k = task % part_count
-                    colour = 0
-                    while colour_offsets[colour + 1] <= k:
-                        colour += 1
-                    wait_until_done(counters, task - k + colour_offsets[colour])
-                    part_step(x, rest, v, step_start, step_start + task // part_count, dt, blocks, colour_parts[k],
-                              model, lam, mu, vertex_forces, corner_forces, inv_mass, gravity, external_accel,
-                              held, held_start, held_velocity, ground, ground_faces, damping_factor, scratch)
-                    fetch_add(counters, DONE, 1)
-                restore_float_control(control)
-        else:
-            for step in range(step_start, step_start + step_count):
-                for colour in range(colour_offsets.shape[0] - 1):
-                    for k in prange(colour_offsets[colour], colour_offsets[colour + 1]):
-                        control = flush_subnormals()
-                        part_step(x, rest, v, step_start, step, dt, blocks, colour_parts[k],
-                                  model, lam, mu, vertex_forces, corner_forces, inv_mass, gravity, external_accel,
-                                  held, held_start, held_velocity, ground, ground_faces, damping_factor, scratch)
-                        restore_float_control(control)
-        if step_count > 0:
-            chunks = min(threads, node_count)
-            for chunk in prange(chunks):
-                control = flush_subnormals()
-                for i in range(chunk * node_count // chunks, (chunk + 1) * node_count // chunks):
-                    update_from_forces(x, rest, v, vertex_forces, i, dt, (step_start + step_count) * dt, inv_mass,
-                                       gravity, external_accel, held, held_start, held_velocity, ground,
-                                       damping_factor)
-                restore_float_control(control)
-        return counters[LONG_WAITS]
-    for step in range(step_start, step_start + step_count):      # csr
+    for step in range(step_start, step_start + step_count):
         t_next = (step + 1) * dt
         chunks = min(threads, block_count)
         for chunk in prange(chunks):
             control = flush_subnormals()
             block_range_forces(x, rest, blocks, chunk * block_count // chunks, (chunk + 1) * block_count // chunks,
-                               model, lam, mu, scatter, vertex_forces, corner_forces,
+                               model, lam, mu, False, vertex_forces, corner_forces,
                                scratch[chunk * SCRATCH:(chunk + 1) * SCRATCH])
             restore_float_control(control)
         if ground is not None:
