@@ -14,9 +14,9 @@ float32's spacing at 1 m, and would be lost in ``x += dt v``, not in ``u += dt v
 force kernel takes the laws in displacement form.  ``rest`` is None in float64.
 
 Features a scene does not use cost nothing: ``ground`` and ``damping_factor`` are ``None`` then,
-and Numba compiles (and caches) a separate specialisation of ``advance`` in which those branches
-are pruned away; the model id comes as a compile-time constant, so that the step compiles the lane
-loop of the scene's material law alone.  Each step evaluates the corner forces of blocks of tets in
+and Numba compiles (and caches) a separate specialisation of the step (``advance_colour``) in
+which those branches are pruned away; the model id comes as a compile-time constant, so that the
+step compiles the lane loop of the scene's material law alone.  Each step evaluates the corner forces of blocks of tets in
 vectorised code (``kernels.blocked``), then sums them per vertex in a fixed order (deterministic
 results): scattered one colour of slab-shaped parts at a time (or, kept for comparison, stored per
 (tet, corner) and gathered per vertex: ``kernels.blocked`` ``scatter='csr'``).
@@ -318,7 +318,7 @@ def advance(x, rest, v, step_start, step_count, dt,
     (tet_count, 4, 3) and gathered per vertex through the vertex -> (tet, corner) map ``offsets``
     (n+1,), ``slots`` (4m,) (``advance_csr``: kept for comparison, and compiled only where asked
     for; with it in the same compiled function, each specialisation of the step took a third
-    longer to compile, 15.7 s against 20.5 s for a second one of StVK).
+    longer to compile: a second one of StVK, damping added, 20-21 s against 13-16 s).
     The colour scatter moves each part's vertices (``BlockLayout.owned_runs``) at the start of the
     part's next step (``part_step``), and all of them after the last step: one wait per colour and
     step, none for the vertex update.  one_region: the parts of every step in one parallel region,
