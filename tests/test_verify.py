@@ -10,7 +10,6 @@ check that the same threshold then fails.  nu is far from 0.25 wherever a swap m
 
 import csv
 import math
-import os
 from dataclasses import replace
 
 import numpy as np
@@ -22,8 +21,6 @@ from softsim.verify.driver import with_lame, with_rest_state
 from softsim.verify.report import COLUMNS, ladders, pareto_front, verify_report
 
 ROTATION_INVARIANT = ("stvk", "corotated", "neohookean")
-# Long checks run only with SOFTSIM_SLOW=1 (pyproject's "slow" marker).
-slow = [pytest.mark.slow, pytest.mark.skipif(not os.environ.get("SOFTSIM_SLOW"), reason="slow: set SOFTSIM_SLOW=1")]
 
 
 @pytest.fixture(scope="module")
@@ -297,8 +294,7 @@ def test_energy_threshold_catches_a_force_inconsistent_with_the_energy():
 
 
 @pytest.mark.parametrize("mutation", MUTATIONS)
-@slow[0]
-@slow[1]
+@pytest.mark.slow                       # runs with SOFTSIM_SLOW=1 (conftest)
 def test_cantilever_threshold_catches(mutation):
     """nu = 0.3 is far enough from 0.25 here: the swap makes the beam 38 % stiffer in bending."""
     rows = CASES["cantilever"](models=("stvk",), mutate=MUTATIONS[mutation], quick=True,

@@ -16,10 +16,11 @@ force kernel takes the laws in displacement form.  ``rest`` is None in float64.
 Features a scene does not use cost nothing: ``ground`` and ``damping_factor`` are ``None`` then,
 and Numba compiles (and caches) a separate specialisation of the step (``advance_colour``) in
 which those branches are pruned away; the model id comes as a compile-time constant, so that the
-step compiles the lane loop of the scene's material law alone.  Each step evaluates the corner forces of blocks of tets in
-vectorised code (``kernels.blocked``), then sums them per vertex in a fixed order (deterministic
-results): scattered one colour of slab-shaped parts at a time (or, kept for comparison, stored per
-(tet, corner) and gathered per vertex: ``kernels.blocked`` ``scatter='csr'``).
+step compiles the lane loop of the scene's material law alone.  Each step evaluates the corner
+forces of blocks of tets in vectorised code (``kernels.blocked``), then sums them per vertex in a
+fixed order (deterministic results): scattered one colour of slab-shaped parts at a time (or,
+kept for comparison, stored per (tet, corner) and gathered per vertex: ``kernels.blocked``
+``scatter='csr'``).
 """
 
 import numpy as np
@@ -344,10 +345,13 @@ def advance(x, rest, v, step_start, step_count, dt,
     to zero (``kernels.simd.flush_subnormals``: in float32 the front of a wave is made of them, and
     each cost a microcode assist), each thread's control word restored after its part or chunk.
     """
-    driver = advance_colour if scatter else advance_csr
-    return driver(x, rest, v, step_start, step_count, dt, blocks, colour_offsets, model, lam, mu, offsets, slots,
-                  vertex_forces, corner_forces, inv_mass, gravity, external_accel, held, held_start, held_velocity,
-                  ground, ground_faces, damping_factor, threads, one_region)
+    if scatter:
+        return advance_colour(x, rest, v, step_start, step_count, dt, blocks, colour_offsets, model, lam, mu,
+                              vertex_forces, corner_forces, inv_mass, gravity, external_accel, held, held_start,
+                              held_velocity, ground, ground_faces, damping_factor, threads, one_region)
+    return advance_csr(x, rest, v, step_start, step_count, dt, blocks, model, lam, mu, offsets, slots,
+                       vertex_forces, corner_forces, inv_mass, gravity, external_accel, held, held_start,
+                       held_velocity, ground, ground_faces, damping_factor, threads)
 
 
 @njit
@@ -358,9 +362,9 @@ def zeroed_counters():
 
 
 @njit_parallel
-def advance_colour(x, rest, v, step_start, step_count, dt, blocks, colour_offsets, model, lam, mu, offsets, slots,
-                   vertex_forces, corner_forces, inv_mass, gravity, external_accel, held, held_start, held_velocity,
-                   ground, ground_faces, damping_factor, threads, one_region):
+def advance_colour(x, rest, v, step_start, step_count, dt, blocks, colour_offsets, model, lam, mu, vertex_forces,
+                   corner_forces, inv_mass, gravity, external_accel, held, held_start, held_velocity, ground,
+                   ground_faces, damping_factor, threads, one_region):
     """``advance`` with the colour scatter (``scatter`` True)."""
     node_count = x.shape[0]
     part_offsets = blocks[3]
@@ -416,15 +420,15 @@ def advance_colour(x, rest, v, step_start, step_count, dt, blocks, colour_offset
 
 
 @njit_parallel
-def advance_csr(x, rest, v, step_start, step_count, dt, blocks, colour_offsets, model, lam, mu, offsets, slots,
-                vertex_forces, corner_forces, inv_mass, gravity, external_accel, held, held_start, held_velocity,
-                ground, ground_faces, damping_factor, threads, one_region):
+def advance_csr(x, rest, v, step_start, step_count, dt, blocks, model, lam, mu, offsets, slots, vertex_forces,
+                corner_forces, inv_mass, gravity, external_accel, held, held_start, held_velocity, ground, ground_faces,
+                damping_factor, threads):
     """``advance`` with the forces stored per (tet, corner) and gathered per vertex (``scatter`` False)."""
     node_count = x.shape[0]
     block_count = blocks[0].shape[0]
     part_offsets = blocks[3]
-    # a scratch buffer per chunk, made once per call
-    scratch = cache_aligned_scratch(max(part_offsets.shape[0] - 1, threads) * SCRATCH, blocks[1])
+    # a scratch buffer per chunk (at most ``threads``), made once per call
+    scratch = cache_aligned_scratch(threads * SCRATCH, blocks[1])
     for step in range(step_start, step_start + step_count):
         t_next = (step + 1) * dt
         chunks = min(threads, block_count)
