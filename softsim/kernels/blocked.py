@@ -539,8 +539,8 @@ def _greedy_colours(v_offsets, v_units, u_offsets, u_vertices, unit_count):
     return colour
 
 
-# The material laws of ``materials.models``, inlined into the lane loops at Numba IR level: as
-# ordinary calls LLVM finds them too large to inline, and a loop with a call does not vectorise.
+# The material laws of ``materials.models``, always inlined into the lane loops (``jit.njit_inline``):
+# as ordinary calls LLVM finds them too large to inline, and a loop with a call does not vectorise.
 _stvk_first_piola = njit_inline(stvk_first_piola.py_func)
 _neohookean_first_piola = njit_inline(neohookean_first_piola.py_func)
 _linear_first_piola = njit_inline(linear_first_piola.py_func)

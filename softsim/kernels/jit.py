@@ -1,7 +1,8 @@
 """The one place where softsim's Numba compilation flags live.
 
 ``njit`` compiles a serial function (inlined into its callers by LLVM where small);
-``njit_parallel`` a driver whose ``prange`` loops run on Numba's thread pool.  Both cache the
+``njit_inline`` one that LLVM always inlines, for the bodies of loops that must vectorise;
+``njit_parallel`` a driver whose ``prange`` loops run on Numba's thread pool.  All cache the
 machine code on disk (``cache=True``), so a second run does not recompile.  Every jitted function
 is a module-level function: Numba cannot cache closures.
 
@@ -144,12 +145,17 @@ def njit(func):
 
 
 def njit_inline(func):
-    """Compile ``func`` inlined into every caller at Numba IR level (``inline="always"``).
+    """Compile ``func`` as ``njit`` does, marked for LLVM to inline into every caller
+    (``forceinline``: LLVM's ``alwaysinline`` attribute), whatever its size.
 
     For the bodies of loops that must vectorise: LLVM does not inline a callee it finds large, and
-    a loop with a call in it stays scalar.  Not compiled (nor cached) on its own.
+    a loop with a call in it stays scalar.  Inlined by LLVM rather than at Numba IR level
+    (``inline="always"``), which re-ran Numba's front end and deep-copied the callee's IR at every
+    call site, nested helpers at every level: corotated's lane loop compiled in 75-81 s that way
+    and in 11.6 s this way, to the same instructions (1568 packed and 2369 scalar arithmetic ones,
+    AVX2; ``benchmarks/NOTES.md``).
     """
-    return numba.njit(inline="always", **JIT_OPTIONS)(func)
+    return _stamp_with_package_hash(numba.njit(forceinline=True, **JIT_OPTIONS)(func))
 
 
 def njit_parallel(func):

@@ -143,7 +143,7 @@ def mat3_to_array(a):
     return out
 
 
-# The same functions inlined at Numba IR level (``jit.njit_inline``), for the lane loops of
+# The same functions always inlined by LLVM (``jit.njit_inline``), for the lane loops of
 # ``kernels.blocked`` and ``kernels.polar3``: as ordinary calls LLVM finds them too large to inline,
 # and a loop with a call in it does not vectorise.
 mat3_mul_inline = njit_inline(mat3_mul.py_func)

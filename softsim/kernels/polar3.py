@@ -33,8 +33,8 @@ moved into the smallest singular value, so that ``R = U V^T`` has det +1 and max
   proper rotation.  About 8 times the cost of the Newton path.
 
 ``polar_rotation`` takes the Newton result where it converged and the Jacobi one elsewhere, per
-tet; ``blocked.corotated_block`` makes the same choice per lane.  The functions are inlined at
-Numba IR level (``njit_inline``) into their callers; ``*_jit`` / ``jacobi_polar_rotation`` /
+tet; ``blocked.corotated_block`` makes the same choice per lane.  The functions are always inlined
+into their callers (``njit_inline``); ``*_jit`` / ``jacobi_polar_rotation`` /
 ``polar_rotation`` are ordinary jitted functions.
 
 A matrix is a row-major 9-tuple, as in ``kernels.mat3``; F is dimensionless (R has no unit, ``s``
