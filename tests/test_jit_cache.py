@@ -189,3 +189,30 @@ def test_the_step_compiles_its_own_model_alone(tmp_path):
     out = subprocess.run([sys.executable, "-c", ONE_MODEL_SCRIPT], capture_output=True, text=True, check=True,
                          env={**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}).stdout.split()
     assert out[-10:] == ["1", "0", "0", "0", "True", "1", "1", "0", "0", "1"]
+
+
+TWIN_SCRIPT = textwrap.dedent("""
+    import sys
+    from softsim.kernels import mat3
+    F = (1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 10.0)
+    if sys.argv[1] == "twin":
+        mat3.mat3_mul(F, F)                 # the cached njit twin of mat3_mul_inline
+    else:
+        mat3.mat3_mul_inline(F, F)
+        (sig,) = mat3.mat3_mul_inline.signatures
+        print(sum(mat3.mat3_mul_inline.stats.cache_hits.values()),
+              "alwaysinline" in mat3.mat3_mul_inline.inspect_llvm(sig))
+""")
+
+
+def test_an_always_inlined_helper_never_takes_its_cached_twins_code(tmp_path):
+    """``jit.njit_inline``'s helpers carry LLVM's ``alwaysinline``, which the lane loops need to
+    vectorise.  Numba keys its disk cache by Python function and signature, not by options, so a
+    helper made from the same function as a cached ``njit`` one (``mat3_mul_inline`` of
+    ``mat3_mul``) would load the twin's entry, compiled without the attribute: after the twin is
+    cached in one process, the helper compiles its own code in the next."""
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}
+    subprocess.run([sys.executable, "-c", TWIN_SCRIPT, "twin"], env=env, check=True)
+    out = subprocess.run([sys.executable, "-c", TWIN_SCRIPT, "helper"], env=env, capture_output=True, text=True,
+                         check=True).stdout.split()
+    assert out[-2:] == ["0", "True"]

@@ -2,9 +2,10 @@
 
 ``njit`` compiles a serial function (inlined into its callers by LLVM where small);
 ``njit_inline`` one that LLVM always inlines, for the bodies of loops that must vectorise;
-``njit_parallel`` a driver whose ``prange`` loops run on Numba's thread pool.  All cache the
-machine code on disk (``cache=True``), so a second run does not recompile.  Every jitted function
-is a module-level function: Numba cannot cache closures.
+``njit_parallel`` a driver whose ``prange`` loops run on Numba's thread pool.  ``njit`` and
+``njit_parallel`` cache the machine code on disk (``cache=True``), so a second run does not
+recompile (``njit_inline``'s code is cached inside its callers').  Every jitted function is a
+module-level function: Numba cannot cache closures.
 
 Numba checks a cached function only against its *own* source file, yet the machine code also
 contains every jitted function it calls from other files (a driver in ``forces.py`` inlines the
@@ -154,8 +155,14 @@ def njit_inline(func):
     call site, nested helpers at every level: corotated's lane loop compiled in 75-81 s that way
     and in 11.6 s this way, to the same instructions (1568 packed and 2369 scalar arithmetic ones,
     AVX2; ``benchmarks/NOTES.md``).
+
+    Not cached on disk: its callers are, with its code inlined, so a run that loads them never
+    compiles it.  Cached, it would share its cache entries with a cached ``njit`` twin of the same
+    Python function (``mat3.mat3_mul`` and ``mat3.mat3_mul_inline``), Numba keying them by function
+    and signature, not by options: whichever compiled first would be loaded for both, possibly
+    without the attribute.
     """
-    return _stamp_with_package_hash(numba.njit(forceinline=True, **JIT_OPTIONS)(func))
+    return numba.njit(forceinline=True, **{**JIT_OPTIONS, "cache": False})(func)
 
 
 def njit_parallel(func):
