@@ -1,0 +1,116 @@
+"""Where the step's time goes: the gather, the lane loop and the scatter of every block, timed
+alone and added one after the other, against the whole step, on one thread.
+
+    python -m benchmarks.phases [--model stvk] [--tets 100000] [--precision float64] [--rounds 9]
+
+Each variant walks every block of the benchmark beam in order, as one thread of the step does,
+on the step's own arrays (so their data come from where the step's come from: cache or memory):
+
+- ``gather``: the corners' positions into the block's scratch buffer (``gather_corners``);
+- ``gather + lanes``: and the material law's lane loop over the block (``model_forces``);
+- ``gather + lanes + scatter``: and the corner forces added into the vertices (``scatter_block``);
+- ``scatter``: the scatter alone, of whatever the buffer holds;
+- ``step``: ``simulation.step``, which adds the vertex update, the prefetches and the schedule.
+
+Nanoseconds per tet, medians over interleaved rounds (the variants alternate, so the machine's
+drift hits all alike).  Differences between consecutive rows are what each phase adds.
+"""
+
+import argparse
+import statistics
+import time
+
+import numba
+import numpy as np
+
+from softsim.kernels.blocked import BLOCK, ROWS, gather_corners, model_forces, scatter_block
+from softsim.kernels.polar3 import NEWTON_FIRST_STEPS
+from softsim.kernels.simd import FORCE_COLUMNS
+
+from .beam import Softsim, prepared_beam
+
+
+# Passes over the mesh (or steps) per timing.
+REPEATS = 10
+
+
+@numba.njit
+def gather_all(x, block_tets, whole_rows, buf, repeats):
+    for _ in range(repeats):
+        for b in range(block_tets.shape[0]):
+            gather_corners(x, block_tets, b, buf, whole_rows[b])
+
+
+@numba.njit
+def gather_and_lanes(x, block_tets, whole_rows, block_rest, model, lam, mu, rest, first_steps, buf, repeats):
+    for _ in range(repeats):
+        for b in range(block_tets.shape[0]):
+            gather_corners(x, block_tets, b, buf, whole_rows[b])
+            first_steps[b] = model_forces(block_rest[b], buf, model, lam, mu, rest, None, first_steps[b])
+
+
+@numba.njit
+def gather_lanes_and_scatter(x, block_tets, whole_rows, block_rest, model, lam, mu, rest, first_steps, buf,
+                             vertex_forces, repeats):
+    for _ in range(repeats):
+        for b in range(block_tets.shape[0]):
+            gather_corners(x, block_tets, b, buf, whole_rows[b])
+            first_steps[b] = model_forces(block_rest[b], buf, model, lam, mu, rest, None, first_steps[b])
+            scatter_block(block_tets, b, BLOCK, buf, vertex_forces)
+
+
+@numba.njit
+def scatter_all(block_tets, buf, vertex_forces, repeats):
+    for _ in range(repeats):
+        for b in range(block_tets.shape[0]):
+            scatter_block(block_tets, b, BLOCK, buf, vertex_forces)
+
+
+def phase_times(model="stvk", tets=100_000, precision="float64", rounds=9):
+    """``{variant: ns per tet}`` (medians over ``rounds``) of the beam of about ``tets`` tets."""
+    numba.set_num_threads(1)
+    runner = Softsim(prepared_beam(tets, model, precision=precision))
+    m, layout = runner.model, runner.model.blocks
+    if precision == "float32":
+        runner.work.load(runner.state, m.rest_points)
+        x, rest = runner.work.u, runner.work.rest
+    else:
+        x, rest = runner.state.x, None
+    dtype = x.dtype.type
+    lam, mu = dtype(m.lam), dtype(m.mu)
+    buf = np.zeros(ROWS * BLOCK, x.dtype)
+    vertex_forces = np.zeros((m.node_count, FORCE_COLUMNS), x.dtype)
+    first_steps = np.full(layout.tets.shape[0], NEWTON_FIRST_STEPS, np.uint8)   # as step_arguments
+    common = (x, layout.tets, layout.whole_rows)
+    law = (layout.rest, m.material_id, lam, mu, rest, first_steps, buf)
+    variants = {
+        "gather": lambda r: gather_all(*common, buf, r),
+        "gather + lanes": lambda r: gather_and_lanes(*common, *law, r),
+        "gather + lanes + scatter": lambda r: gather_lanes_and_scatter(*common, *law, vertex_forces, r),
+        "scatter": lambda r: scatter_all(layout.tets, buf, vertex_forces, r),
+        "step": runner.run,
+    }
+    for run in variants.values():
+        run(1)                                      # compile
+    times = {name: [] for name in variants}
+    for _ in range(rounds):
+        for name, run in variants.items():
+            start = time.perf_counter()
+            run(REPEATS)
+            times[name].append((time.perf_counter() - start) / REPEATS / m.tet_count * 1e9)
+    return {name: statistics.median(t) for name, t in times.items()}
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--model", default="stvk")
+    parser.add_argument("--tets", type=int, default=100_000)
+    parser.add_argument("--precision", default="float64", choices=("float64", "float32"))
+    parser.add_argument("--rounds", type=int, default=9)
+    args = parser.parse_args()
+    for name, ns in phase_times(args.model, args.tets, args.precision, args.rounds).items():
+        print(f"{name:26s} {ns:6.2f} ns per tet")
+
+
+if __name__ == "__main__":
+    main()
