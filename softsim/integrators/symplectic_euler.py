@@ -29,7 +29,7 @@ from numba import prange
 from ..kernels.blocked import (BLOCK, SCRATCH_ROWS, block_forces, cache_aligned_empty, cache_aligned_scratch,
                                prefetch_vertex_rows, scatter_block, store_block_corners)
 from ..kernels.forces import gather_vertex_force
-from ..kernels.jit import njit, njit_inline, njit_parallel
+from ..kernels.jit import njit, njit_ir_inline, njit_parallel
 from ..kernels.polar3 import NEWTON_FIRST_STEPS
 from ..kernels.simd import CACHE_LINE_BYTES, FORCE_COLUMNS, flush_subnormals, restore_float_control
 from ..kernels.sync import fetch_add, load_acquire, spin_pause, yield_thread
@@ -61,7 +61,7 @@ def step_threads(tet_count, available, layer="tbb"):
     return max(1, min(available, tet_count // per_thread))
 
 
-@njit_inline
+@njit_ir_inline
 def position(x, rest, i, k):
     """Component ``k`` of vertex ``i``'s position [m]: ``x[i, k]``, or ``rest[i, k] + x[i, k]`` when
     ``x`` holds displacements from ``rest``."""
@@ -126,7 +126,7 @@ def ground_contact(x, rest, v, i, dt, inv_mass, ground):
             v[i, 1] *= scale
 
 
-@njit_inline
+@njit_ir_inline
 def vertex_accel(gravity, external_accel, i, k):
     """Component ``k`` of vertex ``i``'s external acceleration [m/s^2]: ``external_accel[i, k]``, or
     ``gravity[k]`` where ``external_accel`` is None (no tractions: every vertex has gravity alone,
@@ -136,7 +136,7 @@ def vertex_accel(gravity, external_accel, i, k):
     return external_accel[i, k]
 
 
-@njit_inline
+@njit_ir_inline
 def move_vertex(x, v, i, dt, t_next, held, held_start, held_velocity):
     """``x[i] += dt v[i]``; held components follow ``start + velocity * t_next`` exactly."""
     for k in range(3):
@@ -147,7 +147,7 @@ def move_vertex(x, v, i, dt, t_next, held, held_start, held_velocity):
             x[i, k] += dt * v[i, k]
 
 
-@njit_inline
+@njit_ir_inline
 def update_vertex(x, rest, v, i, fx, fy, fz, dt, t_next, inv_mass, gravity, external_accel, held, held_start,
                   held_velocity, ground, damping_factor):
     """One step of vertex ``i`` from its elastic force ``(fx, fy, fz)`` [N] (see the module docstring);
@@ -168,7 +168,7 @@ def update_vertex(x, rest, v, i, fx, fy, fz, dt, t_next, inv_mass, gravity, exte
         ground[3][i] = 0.0
 
 
-@njit_inline
+@njit_ir_inline
 def update_from_forces(x, rest, v, vertex_forces, i, dt, t_next, inv_mass, gravity, external_accel, held,
                        held_start, held_velocity, ground, damping_factor):
     """``update_vertex`` with vertex ``i``'s summed force from ``vertex_forces``, which it zeroes."""
@@ -194,7 +194,7 @@ LONG_WAITS = 2 * COUNTER_STRIDE
 SPINS_BEFORE_YIELD = 2_000
 
 
-@njit_inline
+@njit_ir_inline
 def wait_until_done(counters, target):
     """Spin until ``counters[DONE]`` reaches ``target`` parts: ``spin_pause`` for
     ``SPINS_BEFORE_YIELD`` looks, then ``yield_thread`` between looks (counted in
@@ -273,7 +273,7 @@ def block_range_forces(x, rest, blocks, first, stop, model, lam, mu, scatter, ve
             store_block_corners(b, lane_count, buf, corner_forces)
 
 
-@njit_inline
+@njit_ir_inline
 def part_step(x, rest, v, step_start, step, dt, blocks, part, model, lam, mu, vertex_forces, corner_forces,
               inv_mass, gravity, external_accel, held, held_start, held_velocity, ground, ground_faces,
               damping_factor, scratch):
