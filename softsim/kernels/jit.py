@@ -168,11 +168,11 @@ def njit_inline(func):
 
 def njit_ir_inline(func):
     """Compile ``func`` inlined into every caller at Numba IR level (``inline="always"``), before
-    typing: for the step driver's helpers (``integrators.symplectic_euler``), whose arguments
-    carry arrays inside tuples (the ground's).  Inlined by LLVM instead (``njit_inline``), the beam
-    with a ground below it stepped at 0.54-0.63x the rate (10k and 100k tets, 2 threads, both
-    codes in one process), with the vertex update alone inlined at Numba IR level 0.82x.  Their
-    nesting is shallow, so they cost little to compile this way.  Not compiled on its own.
+    typing: for the step driver's helpers (``integrators.symplectic_euler``).  Inlined by LLVM
+    instead (``njit_inline``), the bare beam stepped 1.03-1.21x as fast and a step compiled in
+    12.7 s instead of 18.5, but the beam with a ground below it stepped at 0.54-0.63x the rate
+    (10k and 100k tets, 2 threads, both codes in one process), for a reason not found
+    (``benchmarks/NOTES.md``: not the ground's tuple).  Not compiled on its own.
     """
     return numba.njit(inline="always", **{**JIT_OPTIONS, "cache": False})(func)
 
