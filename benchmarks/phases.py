@@ -18,7 +18,6 @@ drift hits all alike).  Differences between consecutive rows are what each phase
 
 import argparse
 import statistics
-import time
 
 import numba
 import numpy as np
@@ -28,10 +27,7 @@ from softsim.kernels.polar3 import NEWTON_FIRST_STEPS
 from softsim.kernels.simd import FORCE_COLUMNS
 
 from .beam import Softsim, prepared_beam
-
-
-# Passes over the mesh (or steps) per timing.
-REPEATS = 10
+from .timing import interleaved
 
 
 @numba.njit
@@ -66,8 +62,9 @@ def scatter_all(block_tets, buf, vertex_forces, repeats):
             scatter_block(block_tets, b, BLOCK, buf, vertex_forces)
 
 
-def phase_times(model="stvk", tets=100_000, precision="float64", rounds=9):
-    """``{variant: ns per tet}`` (medians over ``rounds``) of the beam of about ``tets`` tets."""
+def phase_times(model="stvk", tets=100_000, precision="float64", rounds=9, seconds=0.2):
+    """``{variant: ns per tet}`` (medians over ``rounds`` interleaved rounds of about ``seconds``
+    each, ``timing.interleaved``) of the beam of about ``tets`` tets."""
     numba.set_num_threads(1)
     runner = Softsim(prepared_beam(tets, model, precision=precision))
     m, layout = runner.model, runner.model.blocks
@@ -83,22 +80,24 @@ def phase_times(model="stvk", tets=100_000, precision="float64", rounds=9):
     first_steps = np.full(layout.tets.shape[0], NEWTON_FIRST_STEPS, np.uint8)   # as step_arguments
     common = (x, layout.tets, layout.whole_rows)
     law = (layout.rest, m.material_id, lam, mu, rest, first_steps, buf)
-    variants = {
+    passes = {
         "gather": lambda r: gather_all(*common, buf, r),
         "gather + lanes": lambda r: gather_and_lanes(*common, *law, r),
         "gather + lanes + scatter": lambda r: gather_lanes_and_scatter(*common, *law, vertex_forces, r),
         "scatter": lambda r: scatter_all(layout.tets, buf, vertex_forces, r),
         "step": runner.run,
     }
-    for run in variants.values():
-        run(1)                                      # compile
-    times = {name: [] for name in variants}
-    for _ in range(rounds):
-        for name, run in variants.items():
-            start = time.perf_counter()
-            run(REPEATS)
-            times[name].append((time.perf_counter() - start) / REPEATS / m.tet_count * 1e9)
-    return {name: statistics.median(t) for name, t in times.items()}
+    runners = {name: _Passes(run, m.tet_count) for name, run in passes.items()}
+    rates = interleaved(runners, seconds, rounds)          # M tet-steps/s
+    return {name: 1e3 / statistics.median(r) for name, r in rates.items()}
+
+
+class _Passes:
+    """A runner for ``timing.interleaved``: ``run(steps)`` makes ``steps`` passes over the mesh."""
+
+    def __init__(self, run, tet_count):
+        self.run = run
+        self.tet_count = tet_count
 
 
 def main():

@@ -34,6 +34,8 @@ from numba.extending import typeof_impl
 # it chooses, which need not be the same places in a packed loop as in a scalar function: the two
 # agree to round-off, not bit for bit.  The same code gives the same bits on every run.
 JIT_OPTIONS = dict(cache=True, nogil=True, fastmath={"contract"}, error_model="numpy")
+# The same, not cached on disk: for helpers whose code lives on inside their cached callers.
+UNCACHED_JIT_OPTIONS = {**JIT_OPTIONS, "cache": False}
 
 # LLVM's loop vectoriser leaves a loop of fewer than 16 known iterations scalar when it would need
 # a run-time check that two arrays do not overlap (its ``-vectorizer-min-trip-count``).  The float64
@@ -163,7 +165,7 @@ def njit_inline(func):
     and signature, not by options: whichever compiled first would be loaded for both, possibly
     without the attribute.
     """
-    return numba.njit(forceinline=True, **{**JIT_OPTIONS, "cache": False})(func)
+    return numba.njit(forceinline=True, **UNCACHED_JIT_OPTIONS)(func)
 
 
 def njit_ir_inline(func):
@@ -174,7 +176,7 @@ def njit_ir_inline(func):
     (10k and 100k tets, 2 threads, both codes in one process), for a reason not found
     (``benchmarks/NOTES.md``: not the ground's tuple).  Not compiled on its own.
     """
-    return numba.njit(inline="always", **{**JIT_OPTIONS, "cache": False})(func)
+    return numba.njit(inline="always", **UNCACHED_JIT_OPTIONS)(func)
 
 
 def njit_parallel(func):
