@@ -29,7 +29,7 @@ from numba import prange
 from ..kernels.blocked import (BLOCK, SCRATCH_ROWS, block_forces, cache_aligned_empty, cache_aligned_scratch,
                                prefetch_vertex_rows, scatter_block, store_block_corners)
 from ..kernels.forces import gather_vertex_force
-from ..kernels.jit import njit, njit_ir_inline, njit_parallel
+from ..kernels.jit import njit, njit_inline, njit_parallel
 from ..kernels.polar3 import NEWTON_FIRST_STEPS
 from ..kernels.simd import CACHE_LINE_BYTES, FORCE_COLUMNS, flush_subnormals, restore_float_control
 from ..kernels.sync import fetch_add, load_acquire, spin_pause, yield_thread
@@ -61,7 +61,7 @@ def step_threads(tet_count, available, layer="tbb"):
     return max(1, min(available, tet_count // per_thread))
 
 
-@njit_ir_inline
+@njit_inline
 def position(x, rest, i, k):
     """Component ``k`` of vertex ``i``'s position [m]: ``x[i, k]``, or ``rest[i, k] + x[i, k]`` when
     ``x`` holds displacements from ``rest``."""
@@ -97,36 +97,31 @@ def part_face_areas(x, rest, ground_faces, area_z, part):
         area_z[part_faces[f, 2]] += share
 
 
-@njit
-def ground_contact(x, rest, v, i, dt, inv_mass, ground):
-    """Apply the ground's penalty force and friction to ``v[i]`` in place.
+@njit_inline
+def ground_velocity(vx, vy, vz, depth, area, dt, stiffness, friction, inv_mass):
+    """The velocity (vx, vy, vz) [m/s] of a vertex ``depth`` [m] below the ground after a step of
+    the ground's penalty pressure ``stiffness * depth`` [Pa] on its downward ``area`` [m^2] and of
+    friction, which removes at most ``friction`` times the normal velocity change of tangential
+    speed (it can stop a sliding vertex, never reverse it); inv_mass [1/kg], dt [s].
 
-    ground: ``(height [m], stiffness [Pa/m], friction, area_z (n,))`` (``Model.ground_arguments``);
-    ``area_z[i]``: vertex i's ``part_face_areas`` at the positions the step's forces saw.  The
-    half-space ``z < height`` pushes with pressure ``stiffness * depth`` on the vertex's downward
-    area; friction removes at most ``friction`` times the normal velocity change of tangential
-    speed (it can stop a sliding vertex, never reverse it).
-    """
-    height, stiffness, friction = ground[0], ground[1], ground[2]
-    depth = height - position(x, rest, i, 2)
-    if depth <= 0.0:
-        return
-    area = max(0.0, -ground[3][i])
-    dv_normal = dt * stiffness * depth * area * inv_mass[i]
-    v[i, 2] += dv_normal
+    Scalars in, scalars out: with arrays the vertex update would take and release references
+    that Numba does not prune where it branches to the ground (``update_vertex``)."""
+    dv_normal = dt * stiffness * depth * area * inv_mass
+    vz += dv_normal
     if friction > 0.0:
-        vt = (v[i, 0] ** 2 + v[i, 1] ** 2) ** 0.5
+        vt = (vx ** 2 + vy ** 2) ** 0.5
         dv_friction = friction * dv_normal
         if vt <= dv_friction:
-            v[i, 0] = 0.0
-            v[i, 1] = 0.0
+            vx = 0.0
+            vy = 0.0
         else:
             scale = 1.0 - dv_friction / vt
-            v[i, 0] *= scale
-            v[i, 1] *= scale
+            vx *= scale
+            vy *= scale
+    return vx, vy, vz
 
 
-@njit_ir_inline
+@njit_inline
 def vertex_accel(gravity, external_accel, i, k):
     """Component ``k`` of vertex ``i``'s external acceleration [m/s^2]: ``external_accel[i, k]``, or
     ``gravity[k]`` where ``external_accel`` is None (no tractions: every vertex has gravity alone,
@@ -136,7 +131,7 @@ def vertex_accel(gravity, external_accel, i, k):
     return external_accel[i, k]
 
 
-@njit_ir_inline
+@njit_inline
 def move_vertex(x, v, i, dt, t_next, held, held_start, held_velocity):
     """``x[i] += dt v[i]``; held components follow ``start + velocity * t_next`` exactly."""
     for k in range(3):
@@ -147,28 +142,39 @@ def move_vertex(x, v, i, dt, t_next, held, held_start, held_velocity):
             x[i, k] += dt * v[i, k]
 
 
-@njit_ir_inline
+@njit_inline
 def update_vertex(x, rest, v, i, fx, fy, fz, dt, t_next, inv_mass, gravity, external_accel, held, held_start,
                   held_velocity, ground, damping_factor):
-    """One step of vertex ``i`` from its elastic force ``(fx, fy, fz)`` [N] (see the module docstring);
-    with a ground, zeroes the vertex's summed face area for the next step."""
+    """One step of vertex ``i`` from its elastic force ``(fx, fy, fz)`` [N] (see the module docstring).
+
+    ground: None, or ``(height [m], stiffness [Pa/m], friction, area_z (n,))``
+    (``Model.ground_arguments``), ``area_z[i]`` being vertex i's ``part_face_areas`` at the
+    positions the step's forces saw: a vertex below ``height`` gets ``ground_velocity``, and its
+    ``area_z`` is zeroed for the next step.  The velocity is updated in scalars and stored once,
+    the arrays touched only here: an array passed on to a helper that branches took and released
+    a reference per array and vertex (atomic, not pruned by Numba), and the beam with a ground
+    stepped at half the rate (``benchmarks/NOTES.md``)."""
     w = inv_mass[i]
-    v[i, 0] += dt * (fx * w + vertex_accel(gravity, external_accel, i, 0))
-    v[i, 1] += dt * (fy * w + vertex_accel(gravity, external_accel, i, 1))
-    v[i, 2] += dt * (fz * w + vertex_accel(gravity, external_accel, i, 2))
+    vx = v[i, 0] + dt * (fx * w + vertex_accel(gravity, external_accel, i, 0))
+    vy = v[i, 1] + dt * (fy * w + vertex_accel(gravity, external_accel, i, 1))
+    vz = v[i, 2] + dt * (fz * w + vertex_accel(gravity, external_accel, i, 2))
     if ground is not None:
-        if position(x, rest, i, 2) < ground[0]:   # below the ground
-            ground_contact(x, rest, v, i, dt, inv_mass, ground)
+        height, stiffness, friction, area_z = ground
+        depth = height - position(x, rest, i, 2)
+        if depth > 0.0:                        # below the ground
+            vx, vy, vz = ground_velocity(vx, vy, vz, depth, max(0.0, -area_z[i]), dt, stiffness, friction, w)
+        area_z[i] = 0.0
     if damping_factor is not None:
-        v[i, 0] *= damping_factor
-        v[i, 1] *= damping_factor
-        v[i, 2] *= damping_factor
+        vx *= damping_factor
+        vy *= damping_factor
+        vz *= damping_factor
+    v[i, 0] = vx
+    v[i, 1] = vy
+    v[i, 2] = vz
     move_vertex(x, v, i, dt, t_next, held, held_start, held_velocity)
-    if ground is not None:
-        ground[3][i] = 0.0
 
 
-@njit_ir_inline
+@njit_inline
 def update_from_forces(x, rest, v, vertex_forces, i, dt, t_next, inv_mass, gravity, external_accel, held,
                        held_start, held_velocity, ground, damping_factor):
     """``update_vertex`` with vertex ``i``'s summed force from ``vertex_forces``, which it zeroes."""
@@ -194,7 +200,7 @@ LONG_WAITS = 2 * COUNTER_STRIDE
 SPINS_BEFORE_YIELD = 2_000
 
 
-@njit_ir_inline
+@njit_inline
 def wait_until_done(counters, target):
     """Spin until ``counters[DONE]`` reaches ``target`` parts: ``spin_pause`` for
     ``SPINS_BEFORE_YIELD`` looks, then ``yield_thread`` between looks (counted in
@@ -273,15 +279,14 @@ def block_range_forces(x, rest, blocks, first, stop, model, lam, mu, scatter, ve
             store_block_corners(b, lane_count, buf, corner_forces)
 
 
-@njit_ir_inline
+@njit_inline
 def part_step(x, rest, v, step_start, step, dt, blocks, part, model, lam, mu, vertex_forces, corner_forces,
               inv_mass, gravity, external_accel, held, held_start, held_velocity, ground, ground_faces,
               damping_factor, scratch):
     """Part ``part``'s share of step ``step`` of the colour scatter (``advance``, same arguments):
     after the first step of the call the previous step's update of the vertices the part owns,
     then its faces' areas (with a ground) and its blocks' forces, added into ``vertex_forces``.
-    Inlined into both of ``advance``'s schedules: compiled as a function of its own, the beam with
-    a ground below it stepped at 0.66x the bare beam's rate instead of 0.96x (100k tets)."""
+    Inlined by LLVM into both of ``advance``'s schedules, as are the helpers it calls."""
     run_offsets = blocks[5]
     owned_runs = blocks[6]
     part_offsets = blocks[3]
@@ -335,7 +340,7 @@ def advance(x, rest, v, step_start, step_count, dt,
     inv_mass (n,) [1/kg]; gravity: 3-tuple [m/s^2]; external_accel: None (no tractions: gravity
     alone), or (n, 3) [m/s^2] gravity plus tractions / mass.
     held (n, 3) bool; held_start, held_velocity (n, 3) [m, m/s]: prescribed motion of held components.
-    ground: None, or the tuple ``ground_contact`` takes (small: it reaches every vertex update);
+    ground: None, or the tuple ``update_vertex`` takes (small: it reaches every vertex update);
     ground_faces: None, or ``(part_face_offsets, part_faces)`` (``Model.ground_arguments``);
     damping_factor: None, or exp(-damping dt).
     threads: ``numba.get_num_threads()``.

@@ -1,8 +1,8 @@
 """The one place where softsim's Numba compilation flags live.
 
 ``njit`` compiles a serial function (inlined into its callers by LLVM where small);
-``njit_inline`` one that LLVM always inlines, for the bodies of loops that must vectorise;
-``njit_ir_inline`` one that Numba inlines before typing (the step driver's helpers);
+``njit_inline`` one that LLVM always inlines (the bodies of loops that must vectorise, the step
+driver's helpers);
 ``njit_parallel`` a driver whose ``prange`` loops run on Numba's thread pool.  ``njit`` and
 ``njit_parallel`` cache the machine code on disk (``cache=True``), so a second run does not
 recompile (``njit_inline``'s code is cached inside its callers').  Every jitted function is a
@@ -159,6 +159,11 @@ def njit_inline(func):
     and in 11.6 s this way, to the same instructions (1568 packed and 2369 scalar arithmetic ones,
     AVX2; ``benchmarks/NOTES.md``).
 
+    Numba takes a reference to each array a function receives and releases it on return, atomic
+    operations it prunes only where the function's branches let it; inlining by LLVM comes after
+    that pruning.  A helper called per vertex or per tet must therefore keep its branches simple
+    (scalars in and out: ``integrators.symplectic_euler.update_vertex``; a test checks its IR).
+
     Not cached on disk: its callers are, with its code inlined, so a run that loads them never
     compiles it.  Cached, it would share its cache entries with a cached ``njit`` twin of the same
     Python function (``mat3.mat3_mul`` and ``mat3.mat3_mul_inline``), Numba keying them by function
@@ -166,17 +171,6 @@ def njit_inline(func):
     without the attribute.
     """
     return numba.njit(forceinline=True, **UNCACHED_JIT_OPTIONS)(func)
-
-
-def njit_ir_inline(func):
-    """Compile ``func`` inlined into every caller at Numba IR level (``inline="always"``), before
-    typing: for the step driver's helpers (``integrators.symplectic_euler``).  Inlined by LLVM
-    instead (``njit_inline``), the bare beam stepped 1.03-1.21x as fast and a step compiled in
-    12.7 s instead of 18.5, but the beam with a ground below it stepped at 0.54-0.63x the rate
-    (10k and 100k tets, 2 threads, both codes in one process), for a reason not found
-    (``benchmarks/NOTES.md``: not the ground's tuple).  Not compiled on its own.
-    """
-    return numba.njit(inline="always", **UNCACHED_JIT_OPTIONS)(func)
 
 
 def njit_parallel(func):
