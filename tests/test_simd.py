@@ -85,10 +85,14 @@ def test_add_corner_force_is_add_at(dtype):
     assert not forces[:, 3].any()
 
 
+@pytest.mark.parametrize("lane_count", [BLOCK, BLOCK - 5, 3])
 @pytest.mark.parametrize("uses_last_row", [False, True])
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
-def test_block_gather_and_scatter(dtype, uses_last_row):
-    """A block off x's last row gathers whole rows, one on it masked ones: both as fancy indexing."""
+def test_block_gather_and_scatter(dtype, uses_last_row, lane_count):
+    """A block off x's last row gathers whole rows, one on it masked ones: both as fancy indexing.
+    The scatter adds ``SCATTER_LANES`` lanes at a time and the rest lane by lane (a block of a
+    multiple of them, one with some left over, one with only those), in the order of a loop over
+    lanes and corners: the same bits (100 vertices, many used by several corners)."""
     rng = np.random.default_rng(3)
     n = 100
     x = rng.standard_normal((n, 3)).astype(dtype)
@@ -103,7 +107,6 @@ def test_block_gather_and_scatter(dtype, uses_last_row):
         gathered = buf[(ROW_X + 3 * c) * BLOCK:(ROW_X + 3 * c + 3) * BLOCK].reshape(3, BLOCK)
         np.testing.assert_array_equal(gathered, x[block_tets[1, c]].T)
     forces = np.zeros((n, FORCE_COLUMNS), dtype=dtype)
-    lane_count = BLOCK - 5
     scatter_block(block_tets, 1, lane_count, buf, forces)
     expected = np.zeros((n, 3), dtype=dtype)
     for j in range(lane_count):                  # lane by lane, corner by corner: the scatter's order

@@ -94,8 +94,8 @@ from .mat3 import (mat3_cofactor_inline, mat3_ddot_inline, mat3_det_inline, mat3
 from .polar3 import (NEWTON_FIRST_STEPS, NEWTON_MIN_FIRST_STEPS, jacobi_rotation_and_stretch, newton_polar_finish,
                      newton_polar_start, newton_polar_start_three, newton_polar_start_two)
 from .rotated_rest import TRIANGULAR_ENTRIES, triangular_rest_inverse, triangular_rest_inverses
-from .simd import (CACHE_LINE_BYTES, FORCE_COLUMNS, add_corner_force, gather_corner_rows, prefer_wide_vectors,
-                   prefetch_line)
+from .simd import (CACHE_LINE_BYTES, FORCE_COLUMNS, SCATTER_LANES, add_corner_force, add_four_lanes_corner_forces,
+                   gather_corner_rows, prefer_wide_vectors, prefetch_line)
 
 BLOCK = 64                 # tets per block (a multiple of the SIMD width: 8 doubles in AVX-512)
 REST_ROW_BYTES = 64        # bytes of a row of a group of rest data (one cache line): 8 float64 lanes, 16 float32
@@ -1159,11 +1159,15 @@ def _material_lane_loop(model, block, buf, lam, mu, rest, upcoming, first_steps)
 @njit
 def scatter_block(block_tets, b, lane_count, buf, vertex_forces):
     """Add the corner forces of the first ``lane_count`` lanes of ``buf`` to ``vertex_forces``
-    (node_count, ``simd.FORCE_COLUMNS``): a vector read-modify-write per corner
-    (``simd.add_corner_force``), the fourth column staying zero."""
+    (node_count, ``simd.FORCE_COLUMNS``): a vector read-modify-write per corner, the fourth column
+    staying zero; ``simd.SCATTER_LANES`` lanes at a time (``simd.add_four_lanes_corner_forces``),
+    the lanes past a multiple of them one by one (``simd.add_corner_force``)."""
     if vertex_forces.shape[1] != FORCE_COLUMNS:
         raise ValueError("scatter_block: the vertex forces must have FORCE_COLUMNS columns")
-    for j in range(lane_count):
+    whole = lane_count - lane_count % SCATTER_LANES
+    for j in range(0, whole, SCATTER_LANES):
+        add_four_lanes_corner_forces(vertex_forces, block_tets, b * 4 * BLOCK + j, buf, ROW_F * BLOCK + j, BLOCK)
+    for j in range(whole, lane_count):
         for c in range(4):
             add_corner_force(vertex_forces, block_tets[b, c, j], buf, (ROW_F + 3 * c) * BLOCK + j, BLOCK)
 
