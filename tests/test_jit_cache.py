@@ -233,19 +233,28 @@ def _function_ir(dispatcher, sig):
     raise AssertionError(f"no function {name} in the IR")
 
 
+def _vertex_update_arguments(dtype, ground, damping):
+    """Arguments of ``update_from_forces`` for 3 vertices in ``dtype``, as the step passes them (in
+    float32: displacements from float64 rest positions; the ground's tuple and the damping in float64)."""
+    n = 3
+    held = np.zeros((n, 3), dtype=np.bool_)
+    held[0] = True
+    real = np.dtype(dtype).type
+    return (np.zeros((n, 3), dtype), np.zeros((n, 3)) if dtype == np.float32 else None, np.ones((n, 3), dtype),
+            np.ones((n, 4), dtype), 1, real(1e-3), real(1e-3), np.ones(n, dtype), tuple(map(real, (0.0, 0.0, -9.81))),
+            None, held, np.zeros((n, 3), dtype), np.zeros((n, 3), dtype),
+            (0.0, 1e6, 0.3, np.zeros(n)) if ground else None, damping)
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
 @pytest.mark.parametrize("ground, damping", [(False, None), (True, None), (True, 0.99)])
-def test_the_vertex_update_takes_and_releases_no_reference(ground, damping):
+def test_the_vertex_update_takes_and_releases_no_reference(ground, damping, dtype):
     """The step's per-vertex update is inlined by LLVM (``jit.njit_inline``) after Numba pruned its
     reference counting: every take or release of a reference to an array it is passed left in
     its IR would run per vertex as an atomic operation.  Written with the ground contact as a
     helper taking the arrays (an early return when above the ground), 16 were left, and the beam
     with a ground stepped at half the rate of the bare beam."""
-    n = 3
-    held = np.zeros((n, 3), dtype=np.bool_)
-    held[0] = True
-    ground_arguments = (0.0, 1e6, 0.3, np.zeros(n)) if ground else None
-    args = (np.zeros((n, 3)), None, np.ones((n, 3)), np.ones((n, 4)), 1, 1e-3, 1e-3, np.ones(n), (0.0, 0.0, -9.81),
-            None, held, np.zeros((n, 3)), np.zeros((n, 3)), ground_arguments, damping)
+    args = _vertex_update_arguments(dtype, ground, damping)
     update_from_forces(*args)
     sig = tuple(update_from_forces.typeof_pyval(a) for a in args)
     body = _function_ir(update_from_forces, sig)

@@ -162,7 +162,9 @@ def update_vertex(x, rest, v, i, fx, fy, fz, dt, t_next, inv_mass, gravity, exte
         height, stiffness, friction, area_z = ground
         depth = height - position(x, rest, i, 2)
         if depth > 0.0:                        # below the ground
-            vx, vy, vz = ground_velocity(vx, vy, vz, depth, max(0.0, -area_z[i]), dt, stiffness, friction, w)
+            gx, gy, gz = ground_velocity(vx, vy, vz, depth, max(0.0, -area_z[i]), dt, stiffness, friction, w)
+            # rounded to v's precision, as if stored, before the damping (the ground is float64)
+            vx, vy, vz = v.dtype.type(gx), v.dtype.type(gy), v.dtype.type(gz)
         area_z[i] = 0.0
     if damping_factor is not None:
         vx *= damping_factor
@@ -286,7 +288,7 @@ def part_step(x, rest, v, step_start, step, dt, blocks, part, model, lam, mu, ve
     """Part ``part``'s share of step ``step`` of the colour scatter (``advance``, same arguments):
     after the first step of the call the previous step's update of the vertices the part owns,
     then its faces' areas (with a ground) and its blocks' forces, added into ``vertex_forces``.
-    Inlined by LLVM into both of ``advance``'s schedules, as are the helpers it calls."""
+    Inlined by LLVM into both of ``advance``'s schedules, as is the vertex update it calls."""
     run_offsets = blocks[5]
     owned_runs = blocks[6]
     part_offsets = blocks[3]
@@ -308,7 +310,8 @@ def advance(x, rest, v, step_start, step_count, dt,
     """Advance positions ``x`` and velocities ``v`` (node_count, 3) [m, m/s] in place by ``step_count`` steps.
 
     rest: None; or, in float32, the rest positions (n, 3) [m], ``x`` then holding displacements
-    from them (and ``held_start`` too).  Every array and scalar is in the precision of ``x``.
+    from them (and ``held_start`` too).  Every array and scalar is in the precision of ``x``,
+    but for ``rest``, the ground's tuple and ``damping_factor``: float64.
     step_start: index of the first step (time ``step_start * dt`` [s]); dt [s].
     blocks: ``(block_tets, block_rest, tet_count, part_offsets, colour_parts, run_offsets, owned_runs,
     prefetch, first_offsets, first_vertices, whole_rows, rest_points, first_steps)`` of a

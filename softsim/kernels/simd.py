@@ -17,6 +17,8 @@ emit the instructions directly:
 - ``add_corner_force``: a corner's three force components are added to a vertex's row of four
   (``(n, 4)`` vertex forces, the fourth always zero) as one vector read-modify-write: 4 stores a
   tet instead of 12.  Each component gets the same IEEE addition as a scalar one: the same bits.
+  ``add_four_lanes_corner_forces`` does so for four lanes at once, in float32 building their
+  rows by shuffles from vector loads of the rows of lanes.
 
 Measured per tet, one thread, data in L1/L2 (10k-tet beam, AVX-512, Zen 4, medians of 9): the
 gather by inserts 3.6-3.8 ns against 4.8 (float32 and float64 alike), the scatter 3.1-3.2 ns
@@ -225,6 +227,13 @@ def _masked_row_load(builder, pointer, row_type, size):
     return builder.call(load, [pointer, ir.Constant(i32, size), mask, ir.Constant(row_type, ir.Undefined)])
 
 
+def _add_to_row(builder, forces_data, vertex, add, size):
+    """``forces[vertex, :FORCE_COLUMNS] += add`` (a vector of ``FORCE_COLUMNS``): one load, add and store."""
+    row = builder.gep(forces_data, [builder.mul(vertex, ir.Constant(ir.IntType(64), FORCE_COLUMNS))], inbounds=True)
+    row = builder.bitcast(row, add.type.as_pointer())
+    builder.store(builder.fadd(builder.load(row, align=size), add), row, align=size)
+
+
 def _row_from_values(builder, data, offsets, zero, size):
     """The vector ``(data[offsets[0]], data[offsets[1]], data[offsets[2]], 0)``: three scalar loads."""
     i32 = ir.IntType(32)
@@ -251,7 +260,6 @@ def add_corner_force(typingctx, forces, vertex, buf, buf_offset, row_stride):
         forces_arg, vertex_arg, buf_arg, buf_offset_arg, row_stride_arg = args
         forces_data = _data(context, builder, signature.args[0], forces_arg)
         buf_data = _data(context, builder, signature.args[2], buf_arg)
-        i64 = ir.IntType(64)
         float_type, size = _float_type(context, signature.args[0].dtype)
         vector_type = ir.VectorType(float_type, FORCE_COLUMNS)
         vertex = _int64(context, builder, vertex_arg, signature.args[1])
@@ -260,9 +268,7 @@ def add_corner_force(typingctx, forces, vertex, buf, buf_offset, row_stride):
         zero = ir.Constant(vector_type, [ir.Constant(float_type, 0.0)] * FORCE_COLUMNS)
         add = _row_from_values(builder, buf_data, [offset, builder.add(offset, stride),
                                                    builder.add(builder.add(offset, stride), stride)], zero, size)
-        row = builder.gep(forces_data, [builder.mul(vertex, ir.Constant(i64, FORCE_COLUMNS))], inbounds=True)
-        row = builder.bitcast(row, vector_type.as_pointer())
-        builder.store(builder.fadd(builder.load(row, align=size), add), row, align=size)
+        _add_to_row(builder, forces_data, vertex, add, size)
         return context.get_dummy_value()
 
     return sig, codegen
@@ -283,11 +289,12 @@ def add_four_lanes_corner_forces(typingctx, forces, tets, tet_offset, buf, buf_o
     into the 4 lanes' rows ``(x, y, z, 0)`` by 8 shuffles instead of being built value by value
     from 12 scalar loads: the scatter of a 100k beam's blocks, one thread, 2.13 against 2.63 ns a
     tet; the step, against one lane at a time, one process, 2 threads, 1.05x at 100k tets and
-    1.04x at 1M, one thread 1.09x at 100k.  In float64 the same shuffles, of 4 doubles, cross the
-    halves of a 256-bit register (slow on x86): the scatter alone took 3.81 against 3.02 ns a tet,
-    so float64 builds the rows value by value as ``add_corner_force`` does.
+    1.04x at 1M, one thread 1.09x at 100k.  In float64 the last of those shuffles, of 4 doubles,
+    cross the 128-bit halves of a register: the scatter alone took 3.81 against 3.02 ns a tet, so
+    float64 builds the rows value by value as ``add_corner_force`` does.
     forces: (n, 4) C-contiguous float; tets: C-contiguous uint32 (``BlockLayout.tets``); buf: 1D,
-    the dtype of ``forces``; offsets, stride: integers.
+    the dtype of ``forces``; offsets, stride: integers, ``row_stride`` both the distance between a
+    lane's corners in ``tets`` and between rows of lanes in ``buf`` (``BLOCK`` in both).
     """
     if not (_is_c_array(forces, 2) and isinstance(forces.dtype, types.Float) and _is_c_array(buf, 1)
             and buf.dtype == forces.dtype and isinstance(tets, types.Array) and tets.layout == "C"
@@ -333,9 +340,7 @@ def add_four_lanes_corner_forces(typingctx, forces, tets, tet_offset, buf, buf_o
                 index = builder.add(tet_offset, builder.add(builder.mul(stride, ir.Constant(i64, c)),
                                                             ir.Constant(i64, lane)))
                 vertex = builder.zext(builder.load(builder.gep(tets_data, [index], inbounds=True)), i64)
-                row = builder.gep(forces_data, [builder.mul(vertex, ir.Constant(i64, FORCE_COLUMNS))], inbounds=True)
-                row = builder.bitcast(row, vector_type.as_pointer())
-                builder.store(builder.fadd(builder.load(row, align=size), lane_rows[c][lane]), row, align=size)
+                _add_to_row(builder, forces_data, vertex, lane_rows[c][lane], size)
         return context.get_dummy_value()
 
     return sig, codegen
