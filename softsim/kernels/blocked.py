@@ -216,9 +216,10 @@ NEWTON_VECTOR_MIN_LANES = 11
 #     40k       52.3              58.2               30.7           44.7
 # (small meshes step on one thread: ``integrators.symplectic_euler.step_threads``); csr stays for
 # comparison (``benchmarks``).
-# The blocks are grouped into parts of consecutive blocks, one per slab of ``mesh.reorder`` (the
-# tets are ordered slab by slab); parts sharing no vertex get one colour and are scattered in
-# parallel.  Alternate slabs make two colours of equal parts: two barriers per step.
+# The blocks are grouped into as many parts of consecutive blocks as ``mesh.reorder`` cuts slabs,
+# of equal block counts (``slab_parts``; the tets are ordered slab by slab, so each part is a
+# slab); parts sharing no vertex get one colour and are scattered in parallel.  Alternate parts
+# make two colours of equal parts: two barriers per step.
 
 
 @dataclass(frozen=True)
@@ -303,7 +304,7 @@ def build_block_layout(tets, Dm_inv, rest_volume, node_count, scatter=None, slab
         rest_from_points = np.dtype(dtype) == np.float64 and not triangular and rest_bytes > REST_FROM_POINTS_BYTES
     block_tets, block_rest = block_layout(tets, Dm_inv, rest_volume, dtype, with_rest=not rest_from_points,
                                           triangular=triangular)
-    part_offsets = slab_parts(block_tets, node_count, slabs)
+    part_offsets = slab_parts(block_tets.shape[0], slabs)
     colour_offsets, colour_parts = part_colouring(block_tets, tets.shape[0], node_count, part_offsets)
     run_offsets, owned_runs = owned_vertex_runs(*vertex_owners(block_tets, tets.shape[0], node_count, part_offsets,
                                                                colour_parts))
@@ -339,16 +340,17 @@ def no_first_uses(block_count):
     return np.zeros(block_count + 1, dtype=np.int64), np.empty(0, np.uint32)
 
 
-def slab_parts(block_tets, node_count, slabs=SLABS):
-    """``part_offsets`` (parts + 1,): a part per slab of ``mesh.reorder.slab_order``, a block going to
-    the slab of its first tet's smallest vertex (vertex i is in slab ``i * slabs // node_count``:
-    the slabs hold equal vertex counts, in order).  Empty parts are dropped.  With tets in any
-    other order the parts are still contiguous (the colouring checks what they share), only
-    perhaps unbalanced."""
-    first_vertex = block_tets[:, :, 0].min(axis=1).astype(np.int64)
-    slab = np.maximum.accumulate(first_vertex * slabs // max(node_count, 1))
-    starts = np.searchsorted(slab, np.arange(slabs), side="left")
-    return np.unique(np.append(starts, block_tets.shape[0])).astype(np.int64)
+def slab_parts(block_count, slabs=SLABS):
+    """``part_offsets`` (parts + 1,): ``slabs`` parts of consecutive blocks, as equal in block count
+    as can be (empty ones dropped).  With the tets in the order of ``mesh.reorder.slab_order``
+    (sorted by their first vertex) each part is a slab of the mesh, thick enough that parts two
+    apart share no vertex (the colouring checks).  Cut instead at the slabs of equal vertex count,
+    the last part, whose vertices start few tets, held 15 blocks against 20-21 (10k-tet beam): the
+    other thread waited for the longer ones.  Equal parts against those, beam, 2 threads, one
+    process, 9 rounds each: 0.99-1.04x at 10k tets (4 runs), 0.99 and 1.08 at 28k, 1.01 and 1.07
+    at 100k, 1.06 at 1M: within the noise, a little ahead; still two colours on the beam and the
+    example scenes of more than 2k tets."""
+    return np.unique((np.arange(slabs + 1) * block_count) // slabs).astype(np.int64)
 
 
 def first_uses(block_tets, part_offsets, node_count):
