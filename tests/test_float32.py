@@ -189,11 +189,13 @@ def test_float32_ground_damping_and_driven_vertices_follow_float64():
 
 @numba.njit
 def _update_every_vertex(x, rest, v, dt, inv_mass, gravity, held, ground, damping_factor):
-    """``update_vertex`` of every vertex with no elastic force (zero in the precision of ``v``)."""
+    """``update_vertex`` of every vertex with no elastic force (zero in the precision of ``v``) and
+    no tractions; held components (if any) start at 0 and stay there."""
     zero = v.dtype.type(0.0)
+    held_start, held_velocity = np.zeros_like(x), np.zeros_like(v)
     for i in range(x.shape[0]):
-        update_vertex(x, rest, v, i, zero, zero, zero, dt, dt, inv_mass, gravity, None, held, x, v, ground,
-                      damping_factor)
+        update_vertex(x, rest, v, i, zero, zero, zero, dt, dt, inv_mass, gravity, None, held, held_start,
+                      held_velocity, ground, damping_factor)
 
 
 def test_float32_damping_scales_the_float32_velocity_after_the_ground():

@@ -234,13 +234,20 @@ def _add_to_row(builder, forces_data, vertex, add, size):
     builder.store(builder.fadd(builder.load(row, align=size), add), row, align=size)
 
 
-def _row_from_values(builder, data, offsets, zero, size):
-    """The vector ``(data[offsets[0]], data[offsets[1]], data[offsets[2]], 0)``: three scalar loads."""
+def _zero_row(float_type):
+    """The constant vector of ``FORCE_COLUMNS`` zeros of ``float_type``."""
+    return ir.Constant(ir.VectorType(float_type, FORCE_COLUMNS), [ir.Constant(float_type, 0.0)] * FORCE_COLUMNS)
+
+
+def _row_from_values(builder, data, offset, stride, float_type, size):
+    """The vector ``(data[offset], data[offset + stride], data[offset + 2 stride], 0)``: three scalar
+    loads (offset, stride: i64 values)."""
     i32 = ir.IntType(32)
-    row = zero
-    for k, offset in enumerate(offsets):
+    row = _zero_row(float_type)
+    for k in range(3):
         row = builder.insert_element(row, builder.load(builder.gep(data, [offset], inbounds=True), align=size),
                                      ir.Constant(i32, k))
+        offset = builder.add(offset, stride)
     return row
 
 
@@ -261,14 +268,11 @@ def add_corner_force(typingctx, forces, vertex, buf, buf_offset, row_stride):
         forces_data = _data(context, builder, signature.args[0], forces_arg)
         buf_data = _data(context, builder, signature.args[2], buf_arg)
         float_type, size = _float_type(context, signature.args[0].dtype)
-        vector_type = ir.VectorType(float_type, FORCE_COLUMNS)
         vertex = _int64(context, builder, vertex_arg, signature.args[1])
         offset = _int64(context, builder, buf_offset_arg, signature.args[3])
         stride = _int64(context, builder, row_stride_arg, signature.args[4])
-        zero = ir.Constant(vector_type, [ir.Constant(float_type, 0.0)] * FORCE_COLUMNS)
-        add = _row_from_values(builder, buf_data, [offset, builder.add(offset, stride),
-                                                   builder.add(builder.add(offset, stride), stride)], zero, size)
-        _add_to_row(builder, forces_data, vertex, add, size)
+        _add_to_row(builder, forces_data, vertex, _row_from_values(builder, buf_data, offset, stride, float_type, size),
+                    size)
         return context.get_dummy_value()
 
     return sig, codegen
@@ -313,7 +317,7 @@ def add_four_lanes_corner_forces(typingctx, forces, tets, tet_offset, buf, buf_o
         tet_offset = _int64(context, builder, tet_offset_arg, signature.args[2])
         buf_offset = _int64(context, builder, buf_offset_arg, signature.args[4])
         stride = _int64(context, builder, row_stride_arg, signature.args[5])
-        zero = ir.Constant(vector_type, [ir.Constant(float_type, 0.0)] * FORCE_COLUMNS)
+        zero = _zero_row(float_type)
 
         def row_offset(row, lane=0):
             return builder.add(buf_offset, builder.add(builder.mul(stride, ir.Constant(i64, row)),
@@ -322,8 +326,8 @@ def add_four_lanes_corner_forces(typingctx, forces, tets, tet_offset, buf, buf_o
         lane_rows = []                  # lane_rows[c][l]: lane l's (x, y, z, 0) of corner c
         for c in range(4):
             if size == 8:               # float64: value by value (4 doubles: shuffles across halves)
-                lane_rows.append([_row_from_values(builder, buf_data, [row_offset(3 * c + k, lane) for k in range(3)],
-                                                   zero, size) for lane in range(SCATTER_LANES)])
+                lane_rows.append([_row_from_values(builder, buf_data, row_offset(3 * c, lane), stride, float_type, size)
+                                  for lane in range(SCATTER_LANES)])
                 continue
             x, y, z = (builder.load(builder.bitcast(builder.gep(buf_data, [row_offset(3 * c + k)], inbounds=True),
                                                     vector_type.as_pointer()), align=size) for k in range(3))
