@@ -1,6 +1,11 @@
 """The atomic counters of ``kernels.sync`` and the choice of ``advance``'s schedule
 (``integrators.symplectic_euler.PartSchedule``)."""
 
+import hashlib
+import subprocess
+import sys
+from pathlib import Path
+
 import numba
 import numpy as np
 from numba import prange
@@ -57,3 +62,63 @@ def test_a_call_with_many_long_waits_sends_the_next_calls_to_a_region_per_colour
         assert not schedule.one_region()
         schedule.record(False, 0, 800)
     assert schedule.one_region()                                  # then tried again
+
+
+def test_each_thread_owns_a_run_of_consecutive_parts_with_as_many_of_each_colour():
+    """``part_owner``: 8 slab parts (two colours, even and odd slabs) on 2 threads: slabs 0-3 and
+    4-7, two of each colour per thread, so one boundary between slabs crosses from core to core."""
+    from softsim.integrators.symplectic_euler import part_owner
+
+    owners = [part_owner(p, 8, 2) for p in range(8)]
+    assert owners == [0, 0, 0, 0, 1, 1, 1, 1]
+    assert [part_owner(p, 8, 1) for p in range(8)] == [0] * 8
+    assert [part_owner(p, 8, 4) for p in range(8)] == [0, 0, 1, 1, 2, 2, 3, 3]
+
+
+def _advance_beam(chunks, numba_threads, steps=9):
+    """Positions and velocities of a beam advanced by ``steps`` steps in one call of ``advance``
+    in one region of ``chunks`` chunks run on ``numba_threads`` threads; and its long waits."""
+    from softsim import simulation
+    from softsim.config import parse_scene
+    from softsim.integrators.symplectic_euler import advance, step_arguments, work_buffer
+    from softsim.model import initial_state
+
+    scene = {"mesh": {"shape": "box", "size": [1.0, 0.25, 0.25], "element_size": 0.05, "structured": True},
+             "material": {"model": "stvk", "youngs_modulus": 1e6, "poissons_ratio": 0.3, "density": 1000.0},
+             "fixed": [{"min": [-1e-6, -1, -1], "max": [1e-6, 1, 1]}],
+             "initial_velocity": [0.0, 0.0, -2.0], "time": {"duration": 1.0}}
+    prepared = simulation.prepare(parse_scene(scene))
+    model = prepared.model
+    assert model.blocks.part_offsets.shape[0] - 1 == 8 and model.blocks.colour_count == 2
+    state = initial_state(prepared.scene, model)
+    blocks, colour_offsets, scatter, offsets, slots, vertex_forces, corner = step_arguments(model, work_buffer(model))
+    before = numba.get_num_threads()
+    numba.set_num_threads(numba_threads)
+    try:
+        long_waits = advance(state.x, None, state.v, 0, steps, prepared.plan.dt, blocks, colour_offsets, scatter,
+                             model.material_id, model.lam, model.mu, offsets, slots, vertex_forces, corner,
+                             model.inv_mass, tuple(float(g) for g in model.gravity), None, model.held,
+                             state.held_start, model.held_velocity, None, None, None, chunks, True)
+    finally:
+        numba.set_num_threads(before)
+    return state.x, state.v, long_waits
+
+
+def test_chunks_run_one_after_the_other_take_every_part_without_waiting():
+    """The one region cannot deadlock when the pool runs its chunks one after the other: on one
+    thread, the first of two chunks runs its own parts, then takes the other chunk's (nobody has
+    claimed them), and never waits; the second finds every part taken.  The same bits as one
+    chunk, and as two chunks side by side.  (In a process of its own with a time limit: a
+    deadlock would spin for ever.)"""
+    script = ("import sys, hashlib; sys.path.insert(0, sys.argv[1]); import test_sync; "
+              "x, v, waits = test_sync._advance_beam(chunks=2, numba_threads=1); "
+              "print(waits, hashlib.sha256(x.tobytes() + v.tobytes()).hexdigest())")
+    done = subprocess.run([sys.executable, "-c", script, str(Path(__file__).parent)], capture_output=True,
+                          text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    x1, v1, waits1 = _advance_beam(chunks=1, numba_threads=1)
+    assert done.stdout.split() == ["0", hashlib.sha256(x1.tobytes() + v1.tobytes()).hexdigest()]
+    assert waits1 == 0
+    if numba.config.NUMBA_NUM_THREADS >= 2:
+        x2, v2, _ = _advance_beam(chunks=2, numba_threads=2)
+        assert x1.tobytes() == x2.tobytes() and v1.tobytes() == v2.tobytes()

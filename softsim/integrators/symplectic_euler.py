@@ -191,11 +191,11 @@ def update_from_forces(x, rest, v, vertex_forces, i, dt, t_next, inv_mass, gravi
 
 
 # ``advance``'s counters of the parts of a call run in one region (``one_region``), a cache line
-# apart: parts taken, parts done, waits that outlasted the spinning.
+# apart: parts done, waits that outlasted the spinning, then one claim per task (``claim``).
 COUNTER_STRIDE = CACHE_LINE_BYTES // 8
-TAKEN = 0
-DONE = COUNTER_STRIDE
-LONG_WAITS = 2 * COUNTER_STRIDE
+DONE = 0
+LONG_WAITS = COUNTER_STRIDE
+CLAIMS = 2                 # the first claim's line
 # Pauses (``kernels.sync.spin_pause``, 9.5 ns each on this host: 19 us in all) a thread spins while
 # it waits for another's part, before it yields its core between further looks.  A wait that long
 # means that the other thread lost its core (another process holds one).
@@ -222,8 +222,8 @@ def wait_until_done(counters, target):
 class PartSchedule:
     """Which way ``advance`` runs the parts of the colour scatter, call by call (``one_region``).
 
-    In one region per call the threads take parts from a shared counter and wait for each other
-    by spinning: no parallel region to start per colour and step.  Beam, 2 threads, M tet-steps/s,
+    In one region per call the threads claim the parts themselves and wait for each other by
+    spinning: no parallel region to start per colour and step.  Beam, 2 threads, M tet-steps/s,
     a process each, alternating, quiet host: 10k tets 185-195 against 155-167 with a region per
     colour and step, 100k 204-227 against 198-218.  But where another process holds a core, a
     thread loses its core while it holds a part, and the other waits for it: 10k 89-95 against
@@ -331,9 +331,11 @@ def advance(x, rest, v, step_start, step_count, dt,
     The colour scatter moves each part's vertices (``BlockLayout.owned_runs``) at the start of the
     part's next step (``part_step``), and all of them after the last step: one wait per colour and
     step, none for the vertex update.  one_region: the parts of every step in one parallel region,
-    each thread taking the next part (in step and colour order) from a shared counter and waiting,
-    spinning, until the colours before it are done (``kernels.sync``); else a region per colour and
-    step (``PartSchedule`` chooses).  Returns the waits that outlasted the spinning (0 for csr).
+    colour after colour, each thread waiting, spinning, until the colours before are done
+    (``kernels.sync``), then taking its own parts of the colour (``part_owner``: the same slabs
+    every step, whose vertex rows stay in its core's cache) and then any part of it no thread has
+    taken yet (a thread that fell behind, or lost its core); else a region per colour and step
+    (``PartSchedule`` chooses).  Returns the waits that outlasted the spinning (0 for csr).
     Each vertex gets the same arithmetic in the same order as in a separate vertex loop, so the
     same bits, in either schedule.  With a ground, each part also
     adds its boundary faces' areas to their corners (``part_face_areas``) from the positions its
@@ -363,10 +365,24 @@ def advance(x, rest, v, step_start, step_count, dt,
 
 
 @njit
-def zeroed_counters():
-    """``advance``'s counters, zeroed (a serial function: in ``advance_colour`` Numba would make
-    ``np.zeros`` a parallel loop of its own, to compile)."""
-    return np.zeros(3 * COUNTER_STRIDE, dtype=np.int64)
+def zeroed_counters(task_count=0):
+    """``advance``'s counters, zeroed, and after them a claim per task (step and part) of the one
+    region, each on a cache line of its own (a serial function: in ``advance_colour`` Numba would
+    make ``np.zeros`` a parallel loop of its own, to compile)."""
+    return np.zeros((CLAIMS + task_count) * COUNTER_STRIDE, dtype=np.int64)
+
+
+@njit_inline
+def part_owner(part, part_count, threads):
+    """The thread (chunk of the one region) that runs ``part`` (0 <= part < part_count) unless
+    another takes it first: ``threads`` runs of consecutive parts."""
+    return part * threads // part_count
+
+
+@njit_inline
+def claim(counters, task):
+    """Whether this thread is the first to take ``task`` (``zeroed_counters``' claims)."""
+    return fetch_add(counters, (CLAIMS + task) * COUNTER_STRIDE, 1) == 0
 
 
 @njit_parallel
@@ -384,27 +400,28 @@ def advance_colour(x, rest, v, step_start, step_count, dt, blocks, colour_offset
             vertex_forces[i, k] = 0.0
         if ground is not None:
             ground[3][i] = 0.0
-    counters = zeroed_counters()
+    part_count = colour_parts.shape[0]
+    colour_count = colour_offsets.shape[0] - 1
+    counters = zeroed_counters(step_count * part_count if one_region else 0)
     if one_region:
-        # every part of every step in one region: each thread takes the next part in (step,
-        # colour) order and first waits until every part of the colours before it is done
-        part_count = colour_parts.shape[0]
-        task_count = step_count * part_count
+        # every part of every step in one region, colour after colour: each thread waits until
+        # every part of the colours before is done, then takes its own parts of the colour
+        # (``part_owner``), then any other part of it that no thread has taken yet
         for chunk in prange(threads):
             control = flush_subnormals()
-            while True:
-                task = fetch_add(counters, TAKEN, 1)
-                if task >= task_count:
-                    break
-                k = task % part_count
-                colour = 0
-                while colour_offsets[colour + 1] <= k:
-                    colour += 1
-                wait_until_done(counters, task - k + colour_offsets[colour])
-                part_step(x, rest, v, step_start, step_start + task // part_count, dt, blocks, colour_parts[k],
-                          model, lam, mu, vertex_forces, corner_forces, inv_mass, gravity, external_accel,
-                          held, held_start, held_velocity, ground, ground_faces, damping_factor, scratch)
-                fetch_add(counters, DONE, 1)
+            for group in range(step_count * colour_count):
+                step = group // colour_count
+                colour = group % colour_count
+                wait_until_done(counters, step * part_count + colour_offsets[colour])
+                for own in (True, False):
+                    for k in range(colour_offsets[colour], colour_offsets[colour + 1]):
+                        if ((part_owner(colour_parts[k], part_count, threads) == chunk) == own
+                                and claim(counters, step * part_count + k)):
+                            part_step(x, rest, v, step_start, step_start + step, dt, blocks, colour_parts[k],
+                                      model, lam, mu, vertex_forces, corner_forces, inv_mass, gravity,
+                                      external_accel, held, held_start, held_velocity, ground, ground_faces,
+                                      damping_factor, scratch)
+                            fetch_add(counters, DONE, 1)
             restore_float_control(control)
     else:
         for step in range(step_start, step_start + step_count):

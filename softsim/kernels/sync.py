@@ -2,12 +2,12 @@
 target has no atomics).
 
 ``integrators.symplectic_euler.advance`` runs all the steps of a call in one parallel region:
-its threads take the step's parts one at a time from a shared counter (``fetch_add``) and wait,
-spinning, until every part of the previous colour is done (``load_acquire`` of a second
-counter).  Waiting only for parts that another thread has already taken, a thread never waits
-for work nobody has begun: one thread alone takes every part in order and never waits, so the
-region cannot deadlock whether the thread pool runs its chunks side by side or one after the
-other.
+each thread waits, spinning, until every part of the previous colour is done (``load_acquire``
+of a counter of parts done), then claims the colour's parts, its own first, one at a time
+(``fetch_add`` of a claim per part: the first to add takes it).  A thread leaves a colour only
+when each of its parts is claimed, so it never waits for work nobody has begun: one thread alone
+takes every part in order and never waits, and the region cannot deadlock whether the thread
+pool runs its chunks side by side or one after the other.
 
 - ``fetch_add(counters, i, value)``: ``counters[i] += value`` as one atomic read-modify-write
   (sequentially consistent); returns the value before.
