@@ -8,6 +8,7 @@ this module only decides what to call and in which order.
 import logging
 import math
 import time as _time
+import weakref
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -15,7 +16,8 @@ import numba
 import numpy as np
 
 from .config import scene_to_yaml
-from .integrators.symplectic_euler import PartSchedule, advance, step_arguments, step_threads, work_buffer
+from .integrators.symplectic_euler import (PartSchedule, PrefetchChoice, advance, step_arguments, step_threads,
+                                           work_buffer)
 from .errors import ConfigError, SimulationError
 from .integrators.guard import RECHECK_STEPS, FrameGuard
 from .integrators.stability import exact_stable_step, nodal_frequency_bound
@@ -182,12 +184,16 @@ def frame_fields(model, state, fields):
 # How the colour scatter's parts ran in the last calls of ``step`` (``PartSchedule``): one for the
 # process, as another process taking a core concerns every run in it.
 PART_SCHEDULE = PartSchedule()
+# Whether the step of each large mesh fetches ahead (``PrefetchChoice``), by block layout.
+PREFETCH_CHOICES = weakref.WeakKeyDictionary()
 
 
 def step(model, state, dt, step_count, damping, work):
     """Advance ``state`` in place by ``step_count`` symplectic-Euler steps of ``dt`` [s]; work: the
     buffer of ``work_buffer(model)``.  A float32 model steps displacements in float32
-    (``integrators.symplectic_euler.SinglePrecisionWork``); ``state`` stays float64."""
+    (``integrators.symplectic_euler.SinglePrecisionWork``); ``state`` stays float64.  A large mesh
+    steps with its prefetches or without them, whichever its calls time faster (``PrefetchChoice``,
+    one per block layout in ``PREFETCH_CHOICES``): the same bits either way."""
     damping_factor = math.exp(-damping * dt) if damping > 0.0 else None
     if model.precision == "float32":
         work.load(state, model.rest_points)
@@ -203,11 +209,14 @@ def step(model, state, dt, step_count, damping, work):
         external_accel = model.external_accel if model.has_tractions else None
         lam, mu = model.lam, model.mu
         forces = work
-    blocks, colour_offsets, scatter, offsets, slots, vertex_forces, corner = step_arguments(model, forces)
+    choice = PREFETCH_CHOICES.setdefault(model.blocks, PrefetchChoice()) if model.blocks.measure_prefetch else None
+    prefetch = choice is None or choice.prefetch_next()
+    blocks, colour_offsets, scatter, offsets, slots, vertex_forces, corner = step_arguments(model, forces, prefetch)
     available = numba.get_num_threads()
     threads = step_threads(model.tet_count, available, threading_layer())
     numba.set_num_threads(threads)
     one_region = PART_SCHEDULE.one_region()
+    started = _time.perf_counter()
     try:
         long_waits = advance(x, rest, v, state.step, step_count, dt,
                              blocks, colour_offsets, scatter, model.material_id, lam, mu, offsets, slots,
@@ -215,6 +224,8 @@ def step(model, state, dt, step_count, damping, work):
                              held_velocity, *model.ground_arguments(), damping_factor, threads, one_region)
     finally:
         numba.set_num_threads(available)
+    if choice is not None:
+        choice.record(prefetch, _time.perf_counter() - started, step_count)
     PART_SCHEDULE.record(one_region, long_waits, step_count * (colour_offsets[-1] if scatter else 0))
     if model.precision == "float32":
         work.store(state, model.rest_points)

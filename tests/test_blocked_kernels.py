@@ -287,7 +287,11 @@ def test_only_meshes_whose_rest_data_outgrow_the_cache_prefetch():
     tets = np.zeros((tets_over, 4), dtype=np.int64)
     Dm_inv, V0 = np.zeros((tets_over, 3, 3)), np.zeros(tets_over)
     large = build_block_layout(tets, Dm_inv, V0, 1, model=linear)
-    assert large.prefetch == PREFETCH_BLOCKS_AHEAD
+    assert large.prefetch == PREFETCH_BLOCKS_AHEAD and large.measure_prefetch    # the run times it against none
+    unprefetched = large.unprefetched
+    assert unprefetched is large.unprefetched                                     # made once
+    assert unprefetched.prefetch is None and unprefetched.first_vertices.size == 0 and not unprefetched.measure_prefetch
+    assert not prefetching(large, 1, PREFETCH_BLOCKS_AHEAD).measure_prefetch     # forced: always
     parts = large.part_offsets[:-1]                 # one vertex, first used by each part's first block
     assert large.first_vertices.tolist() == [0] * parts.size and np.diff(large.first_offsets)[parts].tolist() == [1] * parts.size
     assert build_block_layout(tets, Dm_inv, V0, 1, dtype=np.float32, model=linear).prefetch is None

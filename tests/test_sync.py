@@ -122,3 +122,59 @@ def test_chunks_run_one_after_the_other_take_every_part_without_waiting():
     if numba.config.NUMBA_NUM_THREADS >= 2:
         x2, v2, _ = _advance_beam(chunks=2, numba_threads=2)
         assert x1.tobytes() == x2.tobytes() and v1.tobytes() == v2.tobytes()
+
+
+def test_the_prefetch_trial_alternates_and_keeps_the_faster_for_a_while():
+    from softsim.integrators.symplectic_euler import KEEP_CALLS, TRIAL_CALLS, PrefetchChoice
+
+    for faster in (True, False):
+        choice = PrefetchChoice()
+        for trial in range(2):
+            ways = []
+            for call in range(2 * (1 + TRIAL_CALLS)):
+                prefetch = choice.prefetch_next()
+                ways.append(prefetch)
+                seconds_per_step = 100.0 if call < 2 else 1.0 if prefetch == faster else 2.0   # first: compiling
+                choice.record(prefetch, seconds_per_step * 10, 10)
+            assert ways == [True, False] * (1 + TRIAL_CALLS)
+            for _ in range(KEEP_CALLS):
+                assert choice.prefetch_next() == faster
+                choice.record(faster, 1.0, 1)
+        assert choice.prefetch_next() is True                       # the next trial begins
+
+
+def test_a_measured_prefetch_runs_both_ways_with_the_same_bits(monkeypatch):
+    """A layout whose prefetches the run measures (forced onto a small beam) steps with them and
+    without, call by call, and reaches the same bits as a layout that always fetches ahead."""
+    import dataclasses
+
+    from softsim import simulation
+    from softsim.config import parse_scene
+    from softsim.integrators.symplectic_euler import TRIAL_CALLS, work_buffer
+    from softsim.kernels.blocked import PREFETCH_BLOCKS_AHEAD, prefetching
+    from softsim.model import initial_state
+
+    scene = {"mesh": {"shape": "box", "size": [1.0, 0.25, 0.25], "element_size": 0.05, "structured": True},
+             "material": {"model": "stvk", "youngs_modulus": 1e6, "poissons_ratio": 0.3, "density": 1000.0},
+             "fixed": [{"min": [-1e-6, -1, -1], "max": [1e-6, 1, 1]}],
+             "initial_velocity": [0.0, 0.0, -2.0], "time": {"duration": 1.0}}
+    prepared = simulation.prepare(parse_scene(scene))
+    model = prepared.model
+    assert not model.blocks.measure_prefetch                          # a small mesh: no prefetches
+    always = prefetching(model.blocks, model.node_count, PREFETCH_BLOCKS_AHEAD)
+    measured = dataclasses.replace(always, measure_prefetch=True)
+    ways = []
+    original = simulation.step_arguments
+    monkeypatch.setattr(simulation, "step_arguments",
+                        lambda m, work, prefetch=True: ways.append(prefetch) or original(m, work, prefetch))
+    results = []
+    for layout in (always, measured):
+        m = dataclasses.replace(model, blocks=layout)
+        state, work = initial_state(prepared.scene, m), work_buffer(m)
+        for _ in range(2 * (1 + TRIAL_CALLS)):
+            simulation.step(m, state, prepared.plan.dt, 3, 0.0, work)
+        results.append(state.x.tobytes() + state.v.tobytes())
+    calls = 2 * (1 + TRIAL_CALLS)
+    assert ways[:calls] == [True] * calls and ways[calls:] == [True, False] * (1 + TRIAL_CALLS)
+    assert results[0] == results[1]
+    assert simulation.PREFETCH_CHOICES[measured].kept_calls_left > 0   # the trial is over, a way chosen

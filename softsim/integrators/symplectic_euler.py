@@ -23,6 +23,8 @@ kept for comparison, stored per (tet, corner) and gathered per vertex: ``kernels
 ``scatter='csr'``).
 """
 
+import statistics
+
 import numpy as np
 from numba import prange
 
@@ -257,6 +259,51 @@ LONG_WAIT_SHARE = 0.1
 SEPARATE_CALLS = 16
 
 
+class PrefetchChoice:
+    """Whether the next call of the step of a large mesh (``BlockLayout.measure_prefetch``) runs
+    with its prefetches or without them (``BlockLayout.unprefetched``), chosen by timing both.
+
+    What the prefetches buy depends on the host as much as on the mesh: on the 310k beam they cost
+    a Xeon 7 % (192.6 against 179.0 M tet-steps/s) and gained 1.43x on an AMD EPYC; from 1M up
+    they gained on both (1.23x and 1.19x on the Xeon at 1M and 2M).  So a trial alternates the two
+    for ``2 * (1 + TRIAL_CALLS)`` calls, the first call of each untimed (it may compile its
+    specialisation of the step, or find the caches cold), compares the median seconds per step of
+    the rest, and runs the faster for ``KEEP_CALLS`` calls; then the next trial begins.  Both give
+    the same bits.
+    """
+
+    def __init__(self):
+        self.trial_call = 0
+        self.seconds_per_step = {True: [], False: []}
+        self.kept_calls_left = 0
+        self.prefetch = True
+
+    def prefetch_next(self):
+        """Whether the next call fetches ahead."""
+        if self.kept_calls_left > 0:
+            return self.prefetch
+        return self.trial_call % 2 == 0
+
+    def record(self, prefetched, seconds, steps):
+        """Note a call (``prefetched`` as ``prefetch_next`` said) that took ``seconds`` for ``steps`` steps."""
+        if self.kept_calls_left > 0:
+            self.kept_calls_left -= 1
+            return
+        if self.trial_call >= 2 and steps > 0:
+            self.seconds_per_step[prefetched].append(seconds / steps)
+        self.trial_call += 1
+        if self.trial_call == 2 * (1 + TRIAL_CALLS):
+            fetched, unfetched = (statistics.median(self.seconds_per_step[p]) for p in (True, False))
+            self.prefetch = fetched <= unfetched
+            self.kept_calls_left = KEEP_CALLS
+            self.trial_call = 0
+            self.seconds_per_step = {True: [], False: []}
+
+
+TRIAL_CALLS = 3
+KEEP_CALLS = 256
+
+
 @njit
 def block_range_forces(x, rest, blocks, first, stop, model, lam, mu, scatter, vertex_forces, corner_forces, buf):
     """Forces of blocks ``first`` to ``stop - 1``, in order (in the precision of ``blocks``' rest data),
@@ -477,14 +524,15 @@ def advance_csr(x, rest, v, step_start, step_count, dt, blocks, model, lam, mu, 
     return 0
 
 
-def step_arguments(model, work):
+def step_arguments(model, work, prefetch=True):
     """The ``blocks, colour_offsets, scatter, offsets, slots, vertex_forces, corner_forces``
     arguments of ``advance`` for ``model``; work: a buffer from ``work_buffer`` (or larger), in the
-    precision of the step (``SinglePrecisionWork.forces`` in float32).  Each call starts every block
+    precision of the step (``SinglePrecisionWork.forces`` in float32); prefetch False: the blocks
+    of the layout without prefetches (``BlockLayout.unprefetched``; ``PrefetchChoice``).  Each call starts every block
     at four first steps of corotated's Newton iteration (``blocks[12]``), so that a call's forces do
     not depend on earlier calls: a resumed run steps as the run that never stopped.
     """
-    layout = model.blocks
+    layout = model.blocks if prefetch else model.blocks.unprefetched
     n, m = model.node_count, model.tet_count
     flat = work.reshape(-1)
     needed = FORCE_COLUMNS * n if layout.scatter == "colour" else 12 * m

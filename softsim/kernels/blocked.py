@@ -62,8 +62,9 @@ Blocks are padded to a whole block: a padding lane repeats the block's first tet
 so it computes finite zero forces and the scatter skips it.
 """
 
-import math
 import dataclasses
+import functools
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -167,7 +168,9 @@ def _group_lanes_constant(rest):
 # at 1M, 1.04, 1.02, 1.07 at 2M, 0.99, 0.93, 0.95 at 310k.  From process to process the same code
 # varied by up to 1.5x at 1M, so one-process numbers are the ones to trust.  On a small mesh, whose data
 # stay in cache, the prefetches cost more than they save: they are compiled out below the threshold
-# (``BlockLayout.prefetch``).  The same prefetches issued all at once at the start of a block gained
+# (``BlockLayout.prefetch``).  Above it, the run times the step with them and without them and
+# keeps the faster (``BlockLayout.measure_prefetch``): where the data fit in a large last-level
+# cache (310k tets on a Xeon) they cost 7 %.  The same prefetches issued all at once at the start of a block gained
 # 1.14x at 1M; into L1 (``prefetcht0``) they lost 6-12 %.
 # The rows of the vertices a block uses first in its part (``first_uses``: about 14 a block on the
 # beam, 0.2 a tet) are fetched as far ahead, before the block (``prefetch_vertex_rows``): a scatter
@@ -222,7 +225,7 @@ NEWTON_VECTOR_MIN_LANES = 11
 # make two colours of equal parts: two barriers per step.
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class BlockLayout:
     """The tets of a model in blocks of ``BLOCK`` for the vectorised step (see the module docstring).
 
@@ -246,7 +249,10 @@ class BlockLayout:
     reading ``rest`` (float64 rest data in the full form only, above ``REST_FROM_POINTS_BYTES``;
     ``rest_from_corners_block``);
     ``build_block_layout`` then stores none (``rest`` has no blocks), and so do the guard's element
-    checks (``kernels.element_checks``).
+    checks (``kernels.element_checks``);
+    measure_prefetch: the run times calls of the step with the prefetches and without them
+    (``unprefetched``) and keeps the faster (``integrators.symplectic_euler.PrefetchChoice``);
+    False: the step always fetches as ``prefetch`` says.
     """
 
     tets: np.ndarray
@@ -263,6 +269,7 @@ class BlockLayout:
     first_vertices: np.ndarray
     whole_rows: np.ndarray
     rest_from_points: bool = False
+    measure_prefetch: bool = False
 
     @property
     def colour_count(self):
@@ -282,6 +289,11 @@ class BlockLayout:
             raise ValueError(f"the layout's rest data are {self.rest.dtype} in the {form[self.triangular]} form; "
                              f"this step needs {np.dtype(dtype)} in the {form[triangular]} form "
                              f"(build_block_layout(model=...))")
+
+    @functools.cached_property
+    def unprefetched(self):
+        """This layout without any prefetch (``prefetching(self, ..., None)``), made once."""
+        return prefetching(self, 0, None)
 
     def points_for_rest(self, rest_points):
         """What the step and the guard's element checks take as ``rest_points``: the rest positions
@@ -318,20 +330,21 @@ def build_block_layout(tets, Dm_inv, rest_volume, node_count, scatter=None, slab
                          whole_rows=block_tets.max(axis=(1, 2), initial=0) < node_count - 1,
                          rest_from_points=bool(rest_from_points))
     if rest_bytes > PREFETCH_FROM_BYTES:
-        layout = prefetching(layout, node_count, PREFETCH_BLOCKS_AHEAD)
+        layout = dataclasses.replace(prefetching(layout, node_count, PREFETCH_BLOCKS_AHEAD), measure_prefetch=True)
     return layout
 
 
 def prefetching(layout, node_count, ahead, vertex_rows=True):
     """``layout`` fetching the rest data ``ahead`` blocks ahead (None: not at all) and, with
     ``vertex_rows``, the rows of the vertices each block as far ahead uses first (``first_uses``;
-    without: empty lists).  ``build_block_layout`` asks for it above ``PREFETCH_FROM_BYTES``; tests
-    and benchmarks force it on or off."""
+    without: empty lists), always (``measure_prefetch`` False).  ``build_block_layout`` asks for it
+    above ``PREFETCH_FROM_BYTES``, measured; tests and benchmarks force it on or off."""
     if ahead is not None and vertex_rows:
         first_offsets, first_vertices = first_uses(layout.tets, layout.part_offsets, node_count)
     else:
         first_offsets, first_vertices = no_first_uses(layout.tets.shape[0])
-    return dataclasses.replace(layout, prefetch=ahead, first_offsets=first_offsets, first_vertices=first_vertices)
+    return dataclasses.replace(layout, prefetch=ahead, first_offsets=first_offsets, first_vertices=first_vertices,
+                               measure_prefetch=False)
 
 
 def no_first_uses(block_count):
