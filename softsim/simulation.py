@@ -184,7 +184,8 @@ def frame_fields(model, state, fields):
 # How the colour scatter's parts ran in the last calls of ``step`` (``PartSchedule``): one for the
 # process, as another process taking a core concerns every run in it.
 PART_SCHEDULE = PartSchedule()
-# Whether the step of each large mesh fetches ahead (``PrefetchChoice``), by block layout.
+# Whether the step of each large mesh fetches ahead (``PrefetchChoice``), by block layout and
+# thread count.
 PREFETCH_CHOICES = weakref.WeakKeyDictionary()
 
 
@@ -193,7 +194,7 @@ def step(model, state, dt, step_count, damping, work):
     buffer of ``work_buffer(model)``.  A float32 model steps displacements in float32
     (``integrators.symplectic_euler.SinglePrecisionWork``); ``state`` stays float64.  A large mesh
     steps with its prefetches or without them, whichever its calls time faster (``PrefetchChoice``,
-    one per block layout in ``PREFETCH_CHOICES``): the same bits either way."""
+    one per block layout and thread count in ``PREFETCH_CHOICES``): the same bits either way."""
     damping_factor = math.exp(-damping * dt) if damping > 0.0 else None
     if model.precision == "float32":
         work.load(state, model.rest_points)
@@ -209,11 +210,13 @@ def step(model, state, dt, step_count, damping, work):
         external_accel = model.external_accel if model.has_tractions else None
         lam, mu = model.lam, model.mu
         forces = work
-    choice = PREFETCH_CHOICES.setdefault(model.blocks, PrefetchChoice()) if model.blocks.measure_prefetch else None
-    prefetch = choice is None or choice.prefetch_next()
-    blocks, colour_offsets, scatter, offsets, slots, vertex_forces, corner = step_arguments(model, forces, prefetch)
     available = numba.get_num_threads()
     threads = step_threads(model.tet_count, available, threading_layer())
+    choice = None
+    if model.blocks.measure_prefetch:
+        choice = PREFETCH_CHOICES.setdefault(model.blocks, {}).setdefault(threads, PrefetchChoice())
+    prefetch = choice is None or choice.prefetch_next()
+    blocks, colour_offsets, scatter, offsets, slots, vertex_forces, corner = step_arguments(model, forces, prefetch)
     numba.set_num_threads(threads)
     one_region = PART_SCHEDULE.one_region()
     started = _time.perf_counter()

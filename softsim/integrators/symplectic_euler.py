@@ -23,8 +23,6 @@ kept for comparison, stored per (tet, corner) and gathered per vertex: ``kernels
 ``scatter='csr'``).
 """
 
-import statistics
-
 import numpy as np
 from numba import prange
 
@@ -34,7 +32,7 @@ from ..kernels.forces import gather_vertex_force
 from ..kernels.jit import njit, njit_inline, njit_parallel
 from ..kernels.polar3 import NEWTON_FIRST_STEPS
 from ..kernels.simd import CACHE_LINE_BYTES, FORCE_COLUMNS, flush_subnormals, restore_float_control
-from ..kernels.sync import fetch_add, load_acquire, spin_pause, yield_thread
+from ..kernels.sync import compare_exchange, fetch_add, load_acquire, spin_pause, yield_thread
 
 
 # Tets per thread of the step: fewer threads for a smaller mesh, one below 2 x this.  Measured when
@@ -193,7 +191,7 @@ def update_from_forces(x, rest, v, vertex_forces, i, dt, t_next, inv_mass, gravi
 
 
 # ``advance``'s counters of the parts of a call run in one region (``one_region``), a cache line
-# apart: parts done, waits that outlasted the spinning, then one claim per task (``claim``).
+# apart: parts done, waits that outlasted the spinning, then a claim per part (``claim``).
 COUNTER_STRIDE = CACHE_LINE_BYTES // 8
 DONE = 0
 LONG_WAITS = COUNTER_STRIDE
@@ -236,7 +234,12 @@ class PartSchedule:
     and step (TBB's waiting threads sleep, freeing the core); then one region is tried again.
     With the switch, against a region per colour and step always (three alternating processes
     each): quiet, 10k 1.14-1.19x, 100k 1.01-1.08x, 310k 1.01-1.04x; with another process spinning
-    on a core, 0.92-1.09x at 10k to 310k, medians 0.95-0.98x.
+    on a core, 0.92-1.09x at 10k to 310k, medians 0.95-0.98x.  (All measured when the threads
+    took every part from one shared counter.  Since a thread takes its own parts and then any
+    part not yet taken, the one that keeps its core takes the other's parts instead of waiting:
+    with another process spinning on a core, 0-2 long waits a call of 800 parts at 10k and 1-5 of
+    160 at 100k, as on the quiet host (0-2 and 0-6), so the switch no longer fires there, and the
+    one region ran 1.15x and 1.06x the shared counter with its switch.)
     """
 
     def __init__(self):
@@ -265,16 +268,19 @@ class PrefetchChoice:
 
     What the prefetches buy depends on the host as much as on the mesh: on the 310k beam they cost
     a Xeon 7 % (192.6 against 179.0 M tet-steps/s) and gained 1.43x on an AMD EPYC; from 1M up
-    they gained on both (1.23x and 1.19x on the Xeon at 1M and 2M).  So a trial alternates the two
-    for ``2 * (1 + TRIAL_CALLS)`` calls, the first call of each untimed (it may compile its
-    specialisation of the step, or find the caches cold), compares the median seconds per step of
-    the rest, and runs the faster for ``KEEP_CALLS`` calls; then the next trial begins.  Both give
+    they gained on both (1.23x and 1.19x on the Xeon at 1M and 2M).  So a trial runs the two in
+    the order with, without, without, with, with, ... for ``2 * (1 + TRIAL_CALLS)`` calls (calls
+    of alternating lengths, as a run's 32 steps and a frame's remainder, then fall to both), the
+    first call of each untimed (it may compile its specialisation of the step, or find the caches
+    cold), compares their seconds per step over all the other calls, and runs the faster for
+    ``KEEP_CALLS`` calls; then the next trial begins.  Calls of no step do not count.  Both give
     the same bits.
     """
 
     def __init__(self):
         self.trial_call = 0
-        self.seconds_per_step = {True: [], False: []}
+        self.seconds = {True: 0.0, False: 0.0}
+        self.steps = {True: 0, False: 0}
         self.kept_calls_left = 0
         self.prefetch = True
 
@@ -282,22 +288,25 @@ class PrefetchChoice:
         """Whether the next call fetches ahead."""
         if self.kept_calls_left > 0:
             return self.prefetch
-        return self.trial_call % 2 == 0
+        return (self.trial_call + 1) // 2 % 2 == 0
 
     def record(self, prefetched, seconds, steps):
         """Note a call (``prefetched`` as ``prefetch_next`` said) that took ``seconds`` for ``steps`` steps."""
+        if steps <= 0:
+            return
         if self.kept_calls_left > 0:
             self.kept_calls_left -= 1
             return
-        if self.trial_call >= 2 and steps > 0:
-            self.seconds_per_step[prefetched].append(seconds / steps)
+        if self.trial_call >= 2:
+            self.seconds[prefetched] += seconds
+            self.steps[prefetched] += steps
         self.trial_call += 1
         if self.trial_call == 2 * (1 + TRIAL_CALLS):
-            fetched, unfetched = (statistics.median(self.seconds_per_step[p]) for p in (True, False))
-            self.prefetch = fetched <= unfetched
+            self.prefetch = self.seconds[True] * self.steps[False] <= self.seconds[False] * self.steps[True]
             self.kept_calls_left = KEEP_CALLS
             self.trial_call = 0
-            self.seconds_per_step = {True: [], False: []}
+            self.seconds = {True: 0.0, False: 0.0}
+            self.steps = {True: 0, False: 0}
 
 
 TRIAL_CALLS = 3
@@ -412,11 +421,11 @@ def advance(x, rest, v, step_start, step_count, dt,
 
 
 @njit
-def zeroed_counters(task_count=0):
-    """``advance``'s counters, zeroed, and after them a claim per task (step and part) of the one
-    region, each on a cache line of its own (a serial function: in ``advance_colour`` Numba would
-    make ``np.zeros`` a parallel loop of its own, to compile)."""
-    return np.zeros((CLAIMS + task_count) * COUNTER_STRIDE, dtype=np.int64)
+def zeroed_counters(part_count=0):
+    """``advance``'s counters, zeroed, and after them a claim per part of the one region (the
+    steps of the call claimed so far), each on a cache line of its own (a serial function: in
+    ``advance_colour`` Numba would make ``np.zeros`` a parallel loop of its own, to compile)."""
+    return np.zeros((CLAIMS + part_count) * COUNTER_STRIDE, dtype=np.int64)
 
 
 @njit_inline
@@ -427,9 +436,13 @@ def part_owner(part, part_count, threads):
 
 
 @njit_inline
-def claim(counters, task):
-    """Whether this thread is the first to take ``task`` (``zeroed_counters``' claims)."""
-    return fetch_add(counters, (CLAIMS + task) * COUNTER_STRIDE, 1) == 0
+def claim(counters, k, step):
+    """Whether this thread is the first to take the ``k``-th part (of ``colour_parts``) in the
+    call's ``step``-th step: its claim then goes from ``step`` steps claimed to ``step + 1``.  A
+    thread reaches step ``step`` only when step ``step - 1`` is done, so the claim holds ``step``
+    or ``step + 1``.  Read first: a part already taken costs no exclusive hold of its line."""
+    line = (CLAIMS + k) * COUNTER_STRIDE
+    return load_acquire(counters, line) == step and compare_exchange(counters, line, step, step + 1)
 
 
 @njit_parallel
@@ -449,7 +462,7 @@ def advance_colour(x, rest, v, step_start, step_count, dt, blocks, colour_offset
             ground[3][i] = 0.0
     part_count = colour_parts.shape[0]
     colour_count = colour_offsets.shape[0] - 1
-    counters = zeroed_counters(step_count * part_count if one_region else 0)
+    counters = zeroed_counters(part_count if one_region else 0)
     if one_region:
         # every part of every step in one region, colour after colour: each thread waits until
         # every part of the colours before is done, then takes its own parts of the colour
@@ -463,7 +476,7 @@ def advance_colour(x, rest, v, step_start, step_count, dt, blocks, colour_offset
                 for own in (True, False):
                     for k in range(colour_offsets[colour], colour_offsets[colour + 1]):
                         if ((part_owner(colour_parts[k], part_count, threads) == chunk) == own
-                                and claim(counters, step * part_count + k)):
+                                and claim(counters, k, step)):
                             part_step(x, rest, v, step_start, step_start + step, dt, blocks, colour_parts[k],
                                       model, lam, mu, vertex_forces, corner_forces, inv_mass, gravity,
                                       external_accel, held, held_start, held_velocity, ground, ground_faces,

@@ -40,7 +40,9 @@ rest data in cache) and 9.65 against 12.13 at 2M (without the prefetches below).
 prefetcher alone left the lane loop waiting on memory.  So are, before each block, the rows of
 ``x`` and of the vertex forces of the vertices that the block as far ahead is the first of its
 part to use (``first_uses``, ``prefetch_vertex_rows``): the gather and the scatter waited on them
-too.  The material law in the lane loop is the 9-tuple function of ``materials.models``,
+too.  Where a large last-level cache holds such a mesh the prefetches cost more than they save,
+so the run times the step with them and without them and keeps the faster
+(``BlockLayout.measure_prefetch``).  The material law in the lane loop is the 9-tuple function of ``materials.models``,
 inlined; one lane loop per model keeps the law a compile-time choice.  (Corotated's takes
 Newton's scaled iterate and ``-V0`` in its scalars, ``lane_store_corotated_forces``.)
 

@@ -4,13 +4,16 @@ target has no atomics).
 ``integrators.symplectic_euler.advance`` runs all the steps of a call in one parallel region:
 each thread waits, spinning, until every part of the previous colour is done (``load_acquire``
 of a counter of parts done), then claims the colour's parts, its own first, one at a time
-(``fetch_add`` of a claim per part: the first to add takes it).  A thread leaves a colour only
+(``compare_exchange`` of a part's count of steps claimed: the first to raise it takes it).  A thread leaves a colour only
 when each of its parts is claimed, so it never waits for work nobody has begun: one thread alone
 takes every part in order and never waits, and the region cannot deadlock whether the thread
 pool runs its chunks side by side or one after the other.
 
 - ``fetch_add(counters, i, value)``: ``counters[i] += value`` as one atomic read-modify-write
   (sequentially consistent); returns the value before.
+- ``compare_exchange(counters, i, expected, value)``: ``counters[i] = value`` only if it holds
+  ``expected``, atomically; returns whether it did (of threads claiming the same part of the
+  same step, one succeeds).
 - ``load_acquire(counters, i)``: ``counters[i]``, read atomically (acquire: later reads see every
   write made before the matching ``fetch_add``).
 - ``spin_pause()``: a hint that the thread is spinning (x86 ``pause``: it frees the core's other
@@ -47,6 +50,24 @@ def fetch_add(typingctx, counters, index, value):
         pointer = builder.gep(_data(context, builder, signature.args[0], args[0]),
                               [_int64(context, builder, args[1], signature.args[1])], inbounds=True)
         return builder.atomic_rmw("add", pointer, _int64(context, builder, args[2], signature.args[2]), "seq_cst")
+
+    return sig, codegen
+
+
+@intrinsic
+def compare_exchange(typingctx, counters, index, expected, value):
+    """``counters[index] = value`` if it holds ``expected``, as one atomic operation (sequentially
+    consistent); returns whether it did.  counters: 1D C-contiguous int64."""
+    if not (_is_int64_c_array(counters) and all(isinstance(a, types.Integer) for a in (index, expected, value))):
+        return None
+    sig = types.boolean(counters, index, expected, value)
+
+    def codegen(context, builder, signature, args):
+        pointer = builder.gep(_data(context, builder, signature.args[0], args[0]),
+                              [_int64(context, builder, args[1], signature.args[1])], inbounds=True)
+        result = builder.cmpxchg(pointer, _int64(context, builder, args[2], signature.args[2]),
+                                 _int64(context, builder, args[3], signature.args[3]), "seq_cst", "seq_cst")
+        return builder.extract_value(result, 1)
 
     return sig, codegen
 
