@@ -215,3 +215,11 @@ def test_a_measured_prefetch_runs_both_ways_with_the_same_bits(monkeypatch):
     unprefetched = original(dataclasses.replace(model, blocks=measured), work, False)[0]
     assert unprefetched[7] is None and unprefetched[9].size == 0          # no rest data, no vertex rows fetched
     assert all(c.kept_calls_left > 0 for c in simulation.PREFETCH_CHOICES[measured].values())   # a way chosen
+    # compile_step makes the calls that compile: both ways for a measured layout, so the timed
+    # calls that follow (a speed sample, a benchmark's calibration) compile nothing
+    for layout, expected in ((measured, [True, False]), (always, [True])):
+        m = dataclasses.replace(model, blocks=dataclasses.replace(layout))     # a layout of its own: a new trial
+        ways.clear()
+        state = initial_state(prepared.scene, m)
+        simulation.compile_step(m, state, prepared.plan.dt, 0.0, work_buffer(m))
+        assert ways == expected and state.step == len(expected)
