@@ -101,19 +101,25 @@ def test_each_thread_owns_a_run_of_consecutive_parts_with_as_many_of_each_colour
     assert [part_owner(p, 8, 4) for p in range(8)] == [0, 0, 1, 1, 2, 2, 3, 3]
 
 
-def _advance_beam(chunks, numba_threads, steps=9):
-    """Positions and velocities of a beam advanced by ``steps`` steps in one call of ``advance``
-    in one region of ``chunks`` chunks run on ``numba_threads`` threads; and its long waits."""
+def _prepared_beam():
+    """A small StVK beam pinned at one end, moving down (2,500 tets: 8 slab parts, 2 colours)."""
     from softsim import simulation
     from softsim.config import parse_scene
-    from softsim.integrators.symplectic_euler import advance, step_arguments, work_buffer
-    from softsim.model import initial_state
 
     scene = {"mesh": {"shape": "box", "size": [1.0, 0.25, 0.25], "element_size": 0.05, "structured": True},
              "material": {"model": "stvk", "youngs_modulus": 1e6, "poissons_ratio": 0.3, "density": 1000.0},
              "fixed": [{"min": [-1e-6, -1, -1], "max": [1e-6, 1, 1]}],
              "initial_velocity": [0.0, 0.0, -2.0], "time": {"duration": 1.0}}
-    prepared = simulation.prepare(parse_scene(scene))
+    return simulation.prepare(parse_scene(scene))
+
+
+def _advance_beam(chunks, numba_threads, steps=9):
+    """Positions and velocities of a beam advanced by ``steps`` steps in one call of ``advance``
+    in one region of ``chunks`` chunks run on ``numba_threads`` threads; and its long waits."""
+    from softsim.integrators.symplectic_euler import advance, step_arguments, work_buffer
+    from softsim.model import initial_state
+
+    prepared = _prepared_beam()
     model = prepared.model
     assert model.blocks.part_offsets.shape[0] - 1 >= 8 and model.blocks.colour_count == 2    # 8 on up to 4 threads
     state = initial_state(prepared.scene, model)
@@ -184,16 +190,11 @@ def test_a_measured_prefetch_runs_both_ways_with_the_same_bits(monkeypatch):
     import dataclasses
 
     from softsim import simulation
-    from softsim.config import parse_scene
     from softsim.integrators.symplectic_euler import TRIAL_CALLS, work_buffer
     from softsim.kernels.blocked import PREFETCH_BLOCKS_AHEAD, prefetching
     from softsim.model import initial_state
 
-    scene = {"mesh": {"shape": "box", "size": [1.0, 0.25, 0.25], "element_size": 0.05, "structured": True},
-             "material": {"model": "stvk", "youngs_modulus": 1e6, "poissons_ratio": 0.3, "density": 1000.0},
-             "fixed": [{"min": [-1e-6, -1, -1], "max": [1e-6, 1, 1]}],
-             "initial_velocity": [0.0, 0.0, -2.0], "time": {"duration": 1.0}}
-    prepared = simulation.prepare(parse_scene(scene))
+    prepared = _prepared_beam()
     model = prepared.model
     assert not model.blocks.measure_prefetch                          # a small mesh: no prefetches
     always = prefetching(model.blocks, model.node_count, PREFETCH_BLOCKS_AHEAD)

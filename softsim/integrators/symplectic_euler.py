@@ -267,12 +267,13 @@ class PrefetchChoice:
     with its prefetches or without them (``BlockLayout.unprefetched``), chosen by timing both.
 
     What the prefetches buy depends on the host as much as on the mesh: on the 310k beam they cost
-    a Xeon 7 % (192.6 against 179.0 M tet-steps/s) and gained 1.43x on an AMD EPYC; from 1M up
-    they gained on both (1.23x and 1.19x on the Xeon at 1M and 2M).  So a trial runs the two in
-    the order with, without, without, with, with, ... for ``2 * (1 + TRIAL_CALLS)`` calls (calls
-    of alternating lengths, as a run's 32 steps and a frame's remainder, then fall to both), the
-    first call of each untimed (it may compile its specialisation of the step, or find the caches
-    cold), compares their seconds per step over all the other calls, and runs the faster for
+    a Xeon 7-12 % (179-212 against 193-237 M tet-steps/s without, in three suite runs) and gained
+    1.43x on an AMD EPYC; from 1M up they gained on both (1.14-1.23x at 1M and 1.19-1.21x at 2M
+    on the Xeon).  So a trial runs the two in the order with, without, without, with, with, ...
+    for ``2 * (1 + TRIAL_CALLS)`` calls (so that calls of alternating lengths, a run's 32 steps and
+    a frame's remainder, fall to both), the first call of each untimed (it may compile its
+    specialisation of the step, or find the caches cold: ``simulation.compile_step`` makes them),
+    compares their seconds per step over all the other calls, and runs the faster for
     ``KEEP_CALLS`` calls; then the next trial begins.  Calls of no step do not count.  Both give
     the same bits.
     """

@@ -172,7 +172,7 @@ def _group_lanes_constant(rest):
 # stay in cache, the prefetches cost more than they save: they are compiled out below the threshold
 # (``BlockLayout.prefetch``).  Above it, the run times the step with them and without them and
 # keeps the faster (``BlockLayout.measure_prefetch``): where the data fit in a large last-level
-# cache (310k tets on a Xeon) they cost 7 %.  The same prefetches issued all at once at the start of a block gained
+# cache (310k tets on a Xeon) they cost 7-12 %.  The same prefetches issued all at once at the start of a block gained
 # 1.14x at 1M; into L1 (``prefetcht0``) they lost 6-12 %.
 # The rows of the vertices a block uses first in its part (``first_uses``: about 14 a block on the
 # beam, 0.2 a tet) are fetched as far ahead, before the block (``prefetch_vertex_rows``): a scatter
