@@ -338,6 +338,18 @@ def block_range_forces(x, rest, blocks, first, stop, model, lam, mu, scatter, ve
             store_block_corners(b, lane_count, buf, corner_forces)
 
 
+@njit
+def elastic_vertex_forces(x, blocks, model, lam, mu, vertex_forces, buf):
+    """Elastic forces [N] on every vertex at positions ``x`` (n, 3) [m] into ``vertex_forces``
+    (n, ``FORCE_COLUMNS``), zeroed first: the step's blocked kernels (``block_range_forces``), every
+    block in order on this thread.  blocks: ``step_arguments``' of a float64 model with the colour
+    scatter; buf: ``SCRATCH`` floats starting at a cache line.  (The stable-step estimate's force
+    evaluations, ``stability._SymmetricOperator``.)"""
+    vertex_forces[...] = 0.0
+    block_range_forces(x, None, blocks, 0, blocks[0].shape[0], model, lam, mu, True, vertex_forces,
+                       np.empty((0, 4, 3), dtype=vertex_forces.dtype), buf)
+
+
 @njit_inline
 def part_step(x, rest, v, step_start, step, dt, blocks, part, model, lam, mu, vertex_forces, corner_forces,
               inv_mass, gravity, external_accel, held, held_start, held_velocity, ground, ground_faces,
