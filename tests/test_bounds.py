@@ -32,7 +32,7 @@ output: {frame_interval: 0.005, fields: [velocities]}
     return path
 
 
-def test_a_run_of_weeks_is_refused_with_its_measured_estimate(tmp_path):
+def test_a_run_of_days_is_refused_with_its_measured_estimate(tmp_path):
     path = write_scene(tmp_path, None)
     args = ["run", str(path), "-o", str(tmp_path / "long.h5")]
     for override in LONG:

@@ -226,21 +226,33 @@ def test_symplectic_euler_is_stable_below_the_limit_and_blows_up_above(scene, me
 def test_the_operator_takes_the_steps_blocked_forces_equal_to_the_per_tet_ones(scene, model_name):
     """The operator's force evaluations run the step's blocked kernels where the model steps in
     float64 (3-7x the per-tet kernel's speed); at a deformed state they agree with the per-tet
-    ``elastic_forces`` to round-off, for every law (corotated's Newton iteration included).  A
-    float32 model, whose blocks hold float32 rest data, keeps the per-tet kernel."""
+    ``elastic_forces`` to round-off, for every law (corotated's Newton iteration included), with
+    the layout's rest data stored or computed from the rest positions, prefetched or not.  Each
+    evaluation starts corotated's blocks at the same first Newton steps: near rest, where a
+    block's steps fall from call to call, two evaluations give the same bits.  A float32 model,
+    whose blocks hold float32 rest data, keeps the per-tet kernel."""
+    import dataclasses
+
     from softsim.integrators.stability import _SymmetricOperator
+    from softsim.kernels.blocked import PREFETCH_BLOCKS_AHEAD, build_block_layout, prefetching
 
     model = model_of(scene(mesh=GMSH, material={"model": model_name, "poissons_ratio": 0.4}, fixed=HELD_END))
     rng = np.random.default_rng(3)
     A = np.array([[1.3, 0.2, 0.0], [0.0, 0.9, 0.1], [0.05, 0.0, 0.7]])
-    x = np.ascontiguousarray(model.rest_points @ A.T + 0.003 * rng.standard_normal(model.rest_points.shape))
-    op = _SymmetricOperator(model, x)
-    assert op.blocked is not None
-    got = op._forces(x, np.empty_like(x))
-    expected = elastic_forces(x, model.tets, model.Dm_inv, model.rest_volume, model.material_id, model.lam,
-                              model.mu, model.csr_offsets, model.csr_slots)
-    scale = np.abs(expected).max()
-    assert scale > 0.0 and np.abs(got - expected).max() <= 1e-11 * scale
-    assert np.abs(op._forces(x, np.empty_like(x)) - got).max() == 0.0         # again: the same bits
+    deformed = model.rest_points @ A.T + 0.003 * rng.standard_normal(model.rest_points.shape)
+    near_rest = model.rest_points + 1e-7 * rng.standard_normal(model.rest_points.shape)
+    computed = build_block_layout(model.tets, model.Dm_inv, model.rest_volume, model.node_count,
+                                  rest_from_points=True, model=model.material_id)
+    for layout in (model.blocks, prefetching(model.blocks, model.node_count, PREFETCH_BLOCKS_AHEAD), computed):
+        m = dataclasses.replace(model, blocks=layout)
+        for x in (np.ascontiguousarray(deformed), np.ascontiguousarray(near_rest)):
+            op = _SymmetricOperator(m, x)
+            assert op.blocked is not None
+            got = op._forces(x, np.empty_like(x))
+            expected = elastic_forces(x, m.tets, m.Dm_inv, m.rest_volume, m.material_id, m.lam, m.mu,
+                                      m.csr_offsets, m.csr_slots)
+            scale = np.abs(expected).max()
+            assert scale > 0.0 and np.abs(got - expected).max() <= 1e-10 * scale
+            assert op._forces(x, np.empty_like(x)).tobytes() == got.tobytes()        # again: the same bits
     single = model_of(scene(mesh=GMSH, fixed=HELD_END, precision="float32"))
     assert _SymmetricOperator(single, single.rest_points).blocked is None

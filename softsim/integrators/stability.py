@@ -6,11 +6,11 @@ assembling anything:
 
 - ``K`` is the tangent stiffness at positions ``x``, applied matrix-free as a central directional
   derivative of the elastic forces, ``K u = -(f(x + eps u) - f(x - eps u)) / (2 eps)``, with the
-  time loop's own blocked force kernels where the model steps in float64 (``kernels.blocked``,
-  every block in order on one thread: ``symplectic_euler.elastic_vertex_forces``), else the
-  per-tet ones (``kernels.forces``), so it is the tangent of whichever material model the scene
-  uses, at rest or at a deformed state.  ``eps`` moves the
-  fastest vertex by ``1e-6`` of the smallest element altitude at ``x`` (strains of about 1e-6:
+  time loop's blocked force kernels where the model steps in float64 with the colour scatter
+  (``kernels.blocked``, every block in order on one thread:
+  ``symplectic_euler.elastic_vertex_forces``), else the per-tet ones (``kernels.forces``), so it
+  is the tangent of whichever material model the scene uses, at rest or at a deformed state.
+  ``eps`` moves the fastest vertex by ``1e-6`` of the smallest element altitude at ``x`` (strains of about 1e-6:
   truncation error ~1e-12 relative, round-off ~1e-10 relative for metre-sized coordinates).
 - Held components (``model.held``, which includes every massless vertex) do not move: they are
   projected out, so the operator acts on the free components only.
@@ -99,7 +99,8 @@ def _blocked_force_arguments(model):
     """``(blocks, vertex_forces, buf)`` for ``elastic_vertex_forces`` where ``model`` steps in float64
     with the colour scatter (its blocks hold float64 rest data); None elsewhere (float32, csr, or a
     model built without blocks), whose forces come from the per-tet kernel.  The blocked kernels
-    are the step's own (already compiled for the run) and 3-7x as fast as the per-tet one."""
+    are the step's (``block_range_forces``), compiled as a function of their own, and 3-7x as fast
+    as the per-tet one."""
     layout = model.blocks
     if layout is None or layout.scatter != "colour" or layout.rest.dtype != np.float64:
         return None
