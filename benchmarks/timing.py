@@ -9,9 +9,7 @@ import time
 
 
 def calibrate(runner, seconds):
-    """Steps that take about ``seconds`` for ``runner`` (after two first calls that compile: the
-    second compiles the step without prefetches where softsim times it both ways, ``PrefetchChoice``)."""
-    runner.run(1)
+    """Steps that take about ``seconds`` for ``runner`` (after a first call that compiles)."""
     runner.run(1)
     steps, elapsed = 1, 0.0
     while elapsed < 0.05 * seconds:

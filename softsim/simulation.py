@@ -194,7 +194,9 @@ def step(model, state, dt, step_count, damping, work):
     buffer of ``work_buffer(model)``.  A float32 model steps displacements in float32
     (``integrators.symplectic_euler.SinglePrecisionWork``); ``state`` stays float64.  A large mesh
     steps with its prefetches or without them, whichever its calls time faster (``PrefetchChoice``,
-    one per block layout and thread count in ``PREFETCH_CHOICES``): the same bits either way."""
+    one per block layout and thread count in ``PREFETCH_CHOICES``): the same bits either way.  Its
+    first call compiles (or loads) both ways, the second by a call of no step, so that a caller
+    who times the calls after the first (a speed sample, a benchmark) times no compiling."""
     damping_factor = math.exp(-damping * dt) if damping > 0.0 else None
     if model.precision == "float32":
         work.load(state, model.rest_points)
@@ -212,36 +214,38 @@ def step(model, state, dt, step_count, damping, work):
         forces = work
     available = numba.get_num_threads()
     threads = step_threads(model.tet_count, available, threading_layer())
-    choice = None
-    if model.blocks.measure_prefetch:
-        choice = PREFETCH_CHOICES.setdefault(model.blocks, {}).setdefault(threads, PrefetchChoice())
-    prefetch = choice is None or choice.prefetch_next()
-    blocks, colour_offsets, scatter, offsets, slots, vertex_forces, corner = step_arguments(model, forces, prefetch)
-    numba.set_num_threads(threads)
     one_region = PART_SCHEDULE.one_region()
-    started = _time.perf_counter()
-    try:
-        long_waits = advance(x, rest, v, state.step, step_count, dt,
+
+    def advance_way(prefetch, steps):
+        blocks, colour_offsets, scatter, offsets, slots, vertex_forces, corner = step_arguments(model, forces,
+                                                                                              prefetch)
+        long_waits = advance(x, rest, v, state.step, steps, dt,
                              blocks, colour_offsets, scatter, model.material_id, lam, mu, offsets, slots,
                              vertex_forces, corner, inv_mass, gravity, external_accel, model.held, held_start,
                              held_velocity, *model.ground_arguments(), damping_factor, threads, one_region)
+        return long_waits, steps * (colour_offsets[-1] if scatter else 0)
+
+    choice = None
+    numba.set_num_threads(threads)
+    try:
+        if model.blocks.measure_prefetch:
+            choices = PREFETCH_CHOICES.setdefault(model.blocks, {})
+            if threads not in choices:
+                advance_way(False, 0)          # compiles (or loads) the step without prefetches; moves nothing
+                choices[threads] = PrefetchChoice()
+            choice = choices[threads]
+        prefetch = choice is None or choice.prefetch_next()
+        started = _time.perf_counter()
+        long_waits, parts = advance_way(prefetch, step_count)
+        seconds = _time.perf_counter() - started
     finally:
         numba.set_num_threads(available)
     if choice is not None:
-        choice.record(prefetch, _time.perf_counter() - started, step_count)
-    PART_SCHEDULE.record(one_region, long_waits, step_count * (colour_offsets[-1] if scatter else 0))
+        choice.record(prefetch, seconds, step_count)
+    PART_SCHEDULE.record(one_region, long_waits, parts)
     if model.precision == "float32":
         work.store(state, model.rest_points)
     state.step += step_count
-
-
-def compile_step(model, state, dt, damping, work, substeps=1):
-    """Compile (or load from the cache) what a run of ``model`` steps with, by calling ``step``: once,
-    or where the step times its prefetches, once each way (``PrefetchChoice``'s untimed calls),
-    so that later calls, timed, compile nothing.  Advances ``state`` (a copy, for a caller who
-    keeps the run's) by one step of ``dt`` [s] per call, each split into ``substeps``."""
-    for _ in range(2 if model.blocks.measure_prefetch else 1):
-        advance_substeps(model, state, dt, 1, substeps, damping, work)
 
 
 def advance_substeps(model, state, dt, step_count, substeps, damping, work):
@@ -408,7 +412,7 @@ def estimate_run(prepared, output_path):
     if tet_steps / OPTIMISTIC_TET_STEPS_PER_S > LONG_RUN_S:
         state = initial_state(scene, model)
         buffer = work_buffer(model)
-        compile_step(model, state, plan.dt, scene.damping, buffer, prepared.substeps)
+        advance_substeps(model, state, plan.dt, 1, prepared.substeps, scene.damping, buffer)   # compile
         steps, elapsed = 1, 0.0
         while elapsed < SPEED_SAMPLE_S and steps < plan.total_steps:
             started = _time.perf_counter()

@@ -271,9 +271,9 @@ class PrefetchChoice:
     1.43x on an AMD EPYC; from 1M up they gained on both (1.14-1.23x at 1M and 1.19-1.21x at 2M
     on the Xeon).  So a trial runs the two in the order with, without, without, with, with, ...
     for ``2 * (1 + TRIAL_CALLS)`` calls (so that calls of alternating lengths, a run's 32 steps and
-    a frame's remainder, fall to both), the first call of each untimed (it may compile its
-    specialisation of the step, or find the caches cold: ``simulation.compile_step`` makes them),
-    compares their seconds per step over all the other calls, and runs the faster for
+    a frame's remainder, fall to both), the first call of each untimed (it may find the caches
+    cold; ``simulation.step`` compiles both ways before the first call), compares their seconds
+    per step over all the other calls, and runs the faster for
     ``KEEP_CALLS`` calls; then the next trial begins.  Calls of no step do not count.  Both give
     the same bits.
     """

@@ -21,7 +21,7 @@ from ..config import parse_scene
 from ..integrators.symplectic_euler import work_buffer
 from ..integrators.timestep import AUTO_SAFETY
 from ..model import State, initial_state
-from ..simulation import compile_step, prepare, stable_dt_estimate, step
+from ..simulation import prepare, stable_dt_estimate, step
 
 
 # Relative change per chunk below which a float32 run counts as at rest: float32 round-off keeps
@@ -58,11 +58,12 @@ class Run:
         self.setup_s = _time.perf_counter() - started
 
     def _warm_up(self):
-        """Steps on a throw-away copy: compiles (or loads) this scene's specialisations of the loop
-        (``simulation.compile_step``), so that the timed steps compile nothing."""
+        """One step on a throw-away copy: compiles (or loads) this scene's specialisations of the
+        loop (both ways of a step that times its prefetches: ``simulation.step``), so that the timed
+        steps compile nothing."""
         s = self.state
         scratch = State(x=s.x.copy(), v=s.v.copy(), step=s.step, held_start=s.held_start.copy())
-        compile_step(self.model, scratch, self.dt, self.damping, self._corner_forces)
+        step(self.model, scratch, self.dt, 1, self.damping, self._corner_forces)
 
     @property
     def time(self):
