@@ -83,12 +83,12 @@ from ..materials.models import (
     REST_FRAME_INVARIANT,
     STVK,
     corotated_weighted_stress,
-    linear_first_piola,
-    linear_first_piola_displacement,
-    neohookean_first_piola,
-    neohookean_first_piola_displacement,
-    stvk_first_piola,
-    stvk_first_piola_displacement,
+    linear_weighted_first_piola,
+    linear_weighted_first_piola_displacement,
+    neohookean_weighted_first_piola,
+    neohookean_weighted_first_piola_displacement,
+    stvk_weighted_first_piola,
+    stvk_weighted_first_piola_displacement,
 )
 from ..mesh.reorder import SLABS
 from .jit import njit, njit_inline
@@ -558,13 +558,15 @@ def _greedy_colours(v_offsets, v_units, u_offsets, u_vertices, unit_count):
 
 # The material laws of ``materials.models``, always inlined into the lane loops (``jit.njit_inline``):
 # as ordinary calls LLVM finds them too large to inline, and a loop with a call does not vectorise.
-_stvk_first_piola = njit_inline(stvk_first_piola.py_func)
-_neohookean_first_piola = njit_inline(neohookean_first_piola.py_func)
-_linear_first_piola = njit_inline(linear_first_piola.py_func)
+# Each takes a weight, ``-V0``, folded into its scalars: the lane loops scale neither the stress nor
+# the rest matrix by it.
+_stvk_weighted_first_piola = njit_inline(stvk_weighted_first_piola.py_func)
+_neohookean_weighted_first_piola = njit_inline(neohookean_weighted_first_piola.py_func)
+_linear_weighted_first_piola = njit_inline(linear_weighted_first_piola.py_func)
 _corotated_weighted_stress = njit_inline(corotated_weighted_stress.py_func)
-_linear_first_piola_displacement = njit_inline(linear_first_piola_displacement.py_func)
-_stvk_first_piola_displacement = njit_inline(stvk_first_piola_displacement.py_func)
-_neohookean_first_piola_displacement = njit_inline(neohookean_first_piola_displacement.py_func)
+_linear_weighted_first_piola_displacement = njit_inline(linear_weighted_first_piola_displacement.py_func)
+_stvk_weighted_first_piola_displacement = njit_inline(stvk_weighted_first_piola_displacement.py_func)
+_neohookean_weighted_first_piola_displacement = njit_inline(neohookean_weighted_first_piola_displacement.py_func)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -669,10 +671,18 @@ def lane_rest_matrix(rest, l):
 
 
 @njit_inline
-def lane_store_forces(rest, l, buf, j, P):
-    """Corner forces of lane ``j`` (lane ``l`` of its group's rest rows) from its stress ``P``:
-    ``H = -V0 P Dm^-T``, corner c (1..3) gets column c - 1 of H, ``f0 = -(f1 + f2 + f3)``."""
-    H = mat3_mul_transpose_b_inline(mat3_scale_inline(P, -rest[ROW_VOLUME, l]), lane_rest_matrix(rest, l))
+def lane_weight(rest, l):
+    """``-V0`` [m^3] of lane ``l`` of a group's rest rows in the full form: the weight that the
+    laws fold into their scalars (``lane_store_forces``)."""
+    return -rest[ROW_VOLUME, l]
+
+
+@njit_inline
+def lane_store_forces(rest, l, buf, j, Q):
+    """Corner forces of lane ``j`` (lane ``l`` of its group's rest rows) from its weighted stress
+    ``Q = -V0 P`` (a law given ``lane_weight``): ``H = Q Dm^-T``, corner c (1..3) gets column c - 1
+    of H, ``f0 = -(f1 + f2 + f3)``."""
+    H = mat3_mul_transpose_b_inline(Q, lane_rest_matrix(rest, l))
     lane_store_component(buf, j, 0, H[0], H[1], H[2])
     lane_store_component(buf, j, 1, H[3], H[4], H[5])
     lane_store_component(buf, j, 2, H[6], H[7], H[8])
@@ -702,18 +712,17 @@ def lane_rotated_deformation_gradient(rest, l, buf, j):
 
 
 @njit_inline
-def lane_store_rotated_forces(rest, l, buf, j, P):
-    """Corner forces of lane ``j`` from the stress ``P = P(F_r)`` (``lane_rotated_deformation_gradient``):
-    ``H = -V0 P R^-T``, stored as ``lane_store_forces`` does (the scale ``-V0`` applied to the six
-    entries of ``R^-1``, not to the nine of ``P``)."""
-    w = -rest[ROW_TRIANGULAR_VOLUME, l]
-    lane_store_times_triangular(buf, j, P, rest[0, l] * w, rest[1, l] * w, rest[2, l] * w, rest[3, l] * w,
-                                rest[4, l] * w, rest[5, l] * w)
+def lane_rotated_weight(rest, l):
+    """``-V0`` [m^3] of lane ``l`` of a group's triangular rest rows (``lane_weight``)."""
+    return -rest[ROW_TRIANGULAR_VOLUME, l]
 
 
 @njit_inline
-def lane_store_rotated_weighted_forces(rest, l, buf, j, Q):
-    """``lane_store_rotated_forces`` from ``Q = -V0 P`` (a law that folds ``-V0`` into its scalars)."""
+def lane_store_rotated_forces(rest, l, buf, j, Q):
+    """Corner forces of lane ``j`` from the weighted stress ``Q = -V0 P(F_r)`` (a law given
+    ``lane_rotated_weight``, ``F_r`` from ``lane_rotated_deformation_gradient``): ``H = Q R^-T``,
+    stored as ``lane_store_forces`` does.  Folding ``-V0`` into a law's scalars costs two or three
+    multiplies instead of the six that scaled ``R^-1`` (or the nine that scaled ``P``)."""
     lane_store_times_triangular(buf, j, Q, rest[0, l], rest[1, l], rest[2, l], rest[3, l], rest[4, l], rest[5, l])
 
 
@@ -733,8 +742,9 @@ def stvk_block(rest, buf, lam, mu, upcoming):
         group = group_rows(rest, g, upcoming)
         for l in range(lanes):
             j = g * lanes + l
-            lane_store_rotated_forces(group, l, buf, j, _stvk_first_piola(lane_rotated_deformation_gradient(group, l, buf, j),
-                                                                          lam, mu))
+            F = lane_rotated_deformation_gradient(group, l, buf, j)
+            lane_store_rotated_forces(group, l, buf, j,
+                                      _stvk_weighted_first_piola(F, lane_rotated_weight(group, l), lam, mu))
 
 
 @njit
@@ -745,8 +755,9 @@ def neohookean_block(rest, buf, lam, mu, upcoming):
         group = group_rows(rest, g, upcoming)
         for l in range(lanes):
             j = g * lanes + l
+            F = lane_rotated_deformation_gradient(group, l, buf, j)
             lane_store_rotated_forces(group, l, buf, j,
-                                      _neohookean_first_piola(lane_rotated_deformation_gradient(group, l, buf, j), lam, mu))
+                                      _neohookean_weighted_first_piola(F, lane_rotated_weight(group, l), lam, mu))
 
 
 @njit_inline
@@ -754,8 +765,7 @@ def lane_store_corotated_forces(rest, l, buf, j, F, Z, inv, lam, mu):
     """``lane_store_rotated_forces`` of the corotated stress with ``R = inv Z`` (Newton's scaled
     iterate, ``polar3.newton_polar_start``; or a rotation and ``inv = 1``): ``-V0`` is folded into
     the law's scalars (``materials.models.corotated_weighted_stress``)."""
-    lane_store_rotated_weighted_forces(rest, l, buf, j,
-                                       _corotated_weighted_stress(F, Z, inv, -rest[ROW_TRIANGULAR_VOLUME, l], lam, mu))
+    lane_store_rotated_forces(rest, l, buf, j, _corotated_weighted_stress(F, Z, inv, lane_rotated_weight(rest, l), lam, mu))
 
 
 @njit_inline
@@ -945,7 +955,8 @@ def linear_block(rest, buf, lam, mu, upcoming):
         group = group_rows(rest, g, upcoming)
         for l in range(lanes):
             j = g * lanes + l
-            lane_store_forces(group, l, buf, j, _linear_first_piola(lane_deformation_gradient(group, l, buf, j), lam, mu))
+            F = lane_deformation_gradient(group, l, buf, j)
+            lane_store_forces(group, l, buf, j, _linear_weighted_first_piola(F, lane_weight(group, l), lam, mu))
 
 
 @njit
@@ -956,7 +967,8 @@ def stvk_displacement_block(rest, buf, lam, mu, upcoming):
         group = group_rows(rest, g, upcoming)
         for l in range(lanes):
             j = g * lanes + l
-            lane_store_forces(group, l, buf, j, _stvk_first_piola_displacement(lane_deformation_gradient(group, l, buf, j), lam, mu))
+            H = lane_deformation_gradient(group, l, buf, j)
+            lane_store_forces(group, l, buf, j, _stvk_weighted_first_piola_displacement(H, lane_weight(group, l), lam, mu))
 
 
 @njit
@@ -967,7 +979,9 @@ def neohookean_displacement_block(rest, buf, lam, mu, upcoming):
         group = group_rows(rest, g, upcoming)
         for l in range(lanes):
             j = g * lanes + l
-            lane_store_forces(group, l, buf, j, _neohookean_first_piola_displacement(lane_deformation_gradient(group, l, buf, j), lam, mu))
+            H = lane_deformation_gradient(group, l, buf, j)
+            lane_store_forces(group, l, buf, j,
+                              _neohookean_weighted_first_piola_displacement(H, lane_weight(group, l), lam, mu))
 
 
 @njit
@@ -978,7 +992,8 @@ def linear_displacement_block(rest, buf, lam, mu, upcoming):
         group = group_rows(rest, g, upcoming)
         for l in range(lanes):
             j = g * lanes + l
-            lane_store_forces(group, l, buf, j, _linear_first_piola_displacement(lane_deformation_gradient(group, l, buf, j), lam, mu))
+            H = lane_deformation_gradient(group, l, buf, j)
+            lane_store_forces(group, l, buf, j, _linear_weighted_first_piola_displacement(H, lane_weight(group, l), lam, mu))
 
 
 @njit

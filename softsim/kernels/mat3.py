@@ -66,6 +66,35 @@ def mat3_transpose_mul(a, b):
 
 
 @njit
+def mat3_mul_add(a, b, c):
+    """``c + a @ b``, each entry's three products added onto ``c``'s in turn: with contraction,
+    three fused multiply-adds (``c + (a @ b)`` takes a multiply, two multiply-adds and an add)."""
+    return (((c[0] + a[0] * b[0]) + a[1] * b[3]) + a[2] * b[6],
+            ((c[1] + a[0] * b[1]) + a[1] * b[4]) + a[2] * b[7],
+            ((c[2] + a[0] * b[2]) + a[1] * b[5]) + a[2] * b[8],
+            ((c[3] + a[3] * b[0]) + a[4] * b[3]) + a[5] * b[6],
+            ((c[4] + a[3] * b[1]) + a[4] * b[4]) + a[5] * b[7],
+            ((c[5] + a[3] * b[2]) + a[4] * b[5]) + a[5] * b[8],
+            ((c[6] + a[6] * b[0]) + a[7] * b[3]) + a[8] * b[6],
+            ((c[7] + a[6] * b[1]) + a[7] * b[4]) + a[8] * b[7],
+            ((c[8] + a[6] * b[2]) + a[7] * b[5]) + a[8] * b[8])
+
+
+@njit
+def mat3_transpose_mul_add(a, b, c):
+    """``c + a.T @ b``, summed as ``mat3_mul_add``."""
+    return (((c[0] + a[0] * b[0]) + a[3] * b[3]) + a[6] * b[6],
+            ((c[1] + a[0] * b[1]) + a[3] * b[4]) + a[6] * b[7],
+            ((c[2] + a[0] * b[2]) + a[3] * b[5]) + a[6] * b[8],
+            ((c[3] + a[1] * b[0]) + a[4] * b[3]) + a[7] * b[6],
+            ((c[4] + a[1] * b[1]) + a[4] * b[4]) + a[7] * b[7],
+            ((c[5] + a[1] * b[2]) + a[4] * b[5]) + a[7] * b[8],
+            ((c[6] + a[2] * b[0]) + a[5] * b[3]) + a[8] * b[6],
+            ((c[7] + a[2] * b[1]) + a[5] * b[4]) + a[8] * b[7],
+            ((c[8] + a[2] * b[2]) + a[5] * b[5]) + a[8] * b[8])
+
+
+@njit
 def mat3_transpose(a):
     return (a[0], a[3], a[6], a[1], a[4], a[7], a[2], a[5], a[8])
 

@@ -35,14 +35,15 @@ from ..kernels.mat3 import (
     mat3_ddot,
     mat3_ddot_inline,
     mat3_det,
-    mat3_identity,
     mat3_mul,
+    mat3_mul_add,
     mat3_scale,
     mat3_scale_inline,
     mat3_sub,
     mat3_trace,
     mat3_transpose,
     mat3_transpose_mul,
+    mat3_transpose_mul_add,
 )
 from ..kernels.polar3 import polar_rotation
 from .lame import lame_parameters, stable_neohookean_parameters
@@ -78,8 +79,10 @@ def model_lame_parameters(model, youngs_modulus, poissons_ratio):
 
 @njit
 def hooke_stress(strain, lam, mu):
-    """``lam tr(strain) I + 2 mu strain``: Cauchy stress for ``linear``, 2nd Piola-Kirchhoff for ``stvk``."""
-    return mat3_add_scaled(mat3_scale(strain, 2.0 * mu), mat3_identity(), lam * mat3_trace(strain))
+    """``lam tr(strain) I + 2 mu strain``: Cauchy stress for ``linear``, 2nd Piola-Kirchhoff for ``stvk``.
+    The trace term is added to the diagonal alone: ``+ s I`` as nine multiply-adds left six of them
+    adding ``s * 0`` in the lane loops (LLVM may not drop them: ``s`` might be infinite)."""
+    return mat3_add_diagonal(mat3_scale(strain, 2.0 * mu), lam * mat3_trace(strain))
 
 
 @njit
@@ -99,6 +102,12 @@ def linear_first_piola(F, lam, mu):
 
 
 @njit
+def linear_weighted_first_piola(F, weight, lam, mu):
+    """``weight P`` of ``linear_first_piola``: Hooke's law with ``weight lam`` and ``weight mu``."""
+    return hooke_stress(small_strain(F), weight * lam, weight * mu)
+
+
+@njit
 def linear_energy_density(F, lam, mu):
     return hooke_energy_density(small_strain(F), lam, mu)
 
@@ -110,6 +119,15 @@ def linear_energy_density(F, lam, mu):
 @njit
 def stvk_first_piola(F, lam, mu):
     return mat3_mul(F, hooke_stress(green_strain(F), lam, mu))
+
+
+@njit
+def stvk_weighted_first_piola(F, weight, lam, mu):
+    """``weight P`` [Pa times weight's unit] of ``stvk_first_piola``: ``F S'``, ``S' = weight mu G +
+    weight lam/2 tr(G) I`` with ``G = F^T F - I = 2E``, so that the weight and E's 1/2 cost two
+    multiplies, not fifteen.  The lane loops of ``kernels.blocked`` pass ``weight = -V0``."""
+    G = mat3_add_diagonal(mat3_transpose_mul(F, F), -1.0)
+    return mat3_mul(F, mat3_add_diagonal(mat3_scale(G, weight * mu), 0.5 * weight * lam * mat3_trace(G)))
 
 
 @njit
@@ -158,10 +176,18 @@ def corotated_energy_density(F, lam, mu):
 
 @njit
 def neohookean_first_piola(F, lam, mu):
+    return neohookean_weighted_first_piola(F, 1.0, lam, mu)
+
+
+@njit
+def neohookean_weighted_first_piola(F, weight, lam, mu):
+    """``weight P`` [Pa times weight's unit]: ``weight mu (1 - 1/(Ic + 1)) F + weight lam (J - alpha)
+    cof F``, the weight folded into the two scalars (``weight = -V0`` in ``kernels.blocked``)."""
     Ic = mat3_ddot(F, F)
     J = mat3_det(F)
     alpha = 1.0 + 0.75 * mu / lam
-    return mat3_add_scaled(mat3_scale(F, mu * (1.0 - 1.0 / (Ic + 1.0))), mat3_cofactor(F), lam * (J - alpha))
+    return mat3_add_scaled(mat3_scale(F, weight * mu * (1.0 - 1.0 / (Ic + 1.0))), mat3_cofactor(F),
+                           weight * lam * (J - alpha))
 
 
 @njit
@@ -196,37 +222,63 @@ DISPLACEMENT_FORM_MODELS = ("linear", "stvk", "neohookean")
 @njit
 def linear_first_piola_displacement(H, lam, mu):
     """``lam tr(H) I + mu (H + H^T)`` [Pa]: ``linear_first_piola`` at ``F = I + H``."""
-    return mat3_add_diagonal(mat3_scale(mat3_add(H, mat3_transpose(H)), mu), lam * mat3_trace(H))
+    return linear_weighted_first_piola_displacement(H, _ONE, lam, mu)
+
+
+@njit
+def linear_weighted_first_piola_displacement(H, weight, lam, mu):
+    """``weight P`` of ``linear_first_piola_displacement``, the weight in the two scalars (the lane
+    loops of ``kernels.blocked`` pass ``weight = -V0``)."""
+    return mat3_add_diagonal(mat3_scale(mat3_add(H, mat3_transpose(H)), weight * mu), weight * lam * mat3_trace(H))
 
 
 @njit
 def stvk_first_piola_displacement(H, lam, mu):
     """``P = S + H S`` with ``G = H + H^T + H^T H`` (= 2E), ``S = lam/2 tr(G) I + mu G`` [Pa]:
     ``stvk_first_piola`` at ``F = I + H``."""
-    G = mat3_add(mat3_add(H, mat3_transpose(H)), mat3_transpose_mul(H, H))
-    S = mat3_add_diagonal(mat3_scale(G, mu), _HALF * lam * mat3_trace(G))
-    return mat3_add(S, mat3_mul(H, S))
+    return stvk_weighted_first_piola_displacement(H, _ONE, lam, mu)
+
+
+@njit
+def stvk_weighted_first_piola_displacement(H, weight, lam, mu):
+    """``weight P`` of ``stvk_first_piola_displacement``: ``S' + H S'`` with ``S' = weight S``, the
+    weight in S's two scalars."""
+    G = mat3_transpose_mul_add(H, H, mat3_add(H, mat3_transpose(H)))
+    S = mat3_add_diagonal(mat3_scale(G, weight * mu), weight * (_HALF * lam) * mat3_trace(G))
+    return mat3_mul_add(H, S, S)
 
 
 @njit
 def neohookean_first_piola_displacement(H, lam, mu):
-    """``neohookean_first_piola`` at ``F = I + H`` [Pa], rearranged so that nothing cancels at rest:
+    """``neohookean_first_piola`` at ``F = I + H`` [Pa], rearranged so that nothing cancels at rest
+    (``neohookean_weighted_first_piola_displacement``)."""
+    return neohookean_weighted_first_piola_displacement(H, _ONE, lam, mu)
 
-    ``P = mu [3/4 (F - cof F) + (Ic - 3) / (4 (Ic + 1)) F] + lam (J - 1) cof F`` (from
-    ``Ic / (Ic + 1) = 3/4 + (Ic - 3) / (4 (Ic + 1))`` and ``alpha = 1 + 3 mu / (4 lam)``), with
-    ``cof F = (1 + tr H) I - H^T + cof H``, ``F - cof F = H + H^T - tr(H) I - cof H``,
-    ``Ic - 3 = 2 tr H + H:H`` and ``J - 1 = tr H + tr(cof H) + det H``.
+
+@njit
+def neohookean_weighted_first_piola_displacement(H, weight, lam, mu):
+    """``weight P`` of ``neohookean_first_piola`` at ``F = I + H`` [Pa times weight's unit].
+
+    With ``Ic / (Ic + 1) = 3/4 + s``, ``s = (Ic - 3) / (4 (Ic + 1))``, and ``alpha = 1 + 3 mu / (4
+    lam)``, the law is ``P = (a + b) F + (c - a) cof F`` with ``a = 3/4 mu``, ``b = mu s``, ``c = lam
+    (J - 1)``.  Put ``F = I + H`` and ``cof F = (1 + tr H) I - H^T + cof H`` in it:
+
+        ``P = (a + b) H + (c - a) (cof H - H^T) + (b + c + (c - a) tr H) I``,
+
+    where ``b``, ``c`` and ``tr H`` vanish at rest, ``Ic - 3 = 2 tr H + H:H`` and ``J - 1 = tr H +
+    tr(cof H) + det H``: no O(1) terms cancel.  The weight goes into the three scalars.
     """
     tr = mat3_trace(H)
-    Ht = mat3_transpose(H)
     cof_H = mat3_cofactor(H)
-    J_minus_1 = tr + mat3_trace(cof_H) + mat3_det(H)
+    J_minus_1 = tr + mat3_trace(cof_H) + (H[0] * cof_H[0] + H[1] * cof_H[1] + H[2] * cof_H[2])
     Ic_minus_3 = _TWO * tr + mat3_ddot(H, H)
-    cof_F = mat3_add_diagonal(mat3_sub(cof_H, Ht), _ONE + tr)
-    F_minus_cof_F = mat3_add_diagonal(mat3_sub(mat3_add(H, Ht), cof_H), -tr)
-    stretch = Ic_minus_3 / (_FOUR * (_FOUR + Ic_minus_3))
-    shear = mat3_add(mat3_scale(F_minus_cof_F, _THREE_QUARTERS), mat3_scale(mat3_add_diagonal(H, _ONE), stretch))
-    return mat3_add(mat3_scale(shear, mu), mat3_scale(cof_F, lam * J_minus_1))
+    a = _THREE_QUARTERS * mu
+    b = mu * (Ic_minus_3 / (_FOUR * (_FOUR + Ic_minus_3)))
+    c = lam * J_minus_1
+    c_minus_a = c - a
+    diagonal = weight * (b + c + c_minus_a * tr)
+    return mat3_add_scaled(mat3_add_diagonal(mat3_scale(H, weight * (a + b)), diagonal),
+                           mat3_sub(cof_H, mat3_transpose(H)), weight * c_minus_a)
 
 
 # ---------------------------------------------------------------------------------------------
