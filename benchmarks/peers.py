@@ -135,9 +135,10 @@ _wp_kernels = None
 # Clang's flags for the peer's kernels (this module's): the host's instruction set, -O3, and fused
 # multiply-adds as softsim's kernels have them (``fastmath={"contract"}``), nothing else of
 # fast-math.  Warp 1.19's default adds LLVM options for more inlining and a shallower SLP
-# vectoriser (``warp.config.cpu_compiler_flags``); without them this kernel ran 1.16x as fast,
-# with contraction 1.20x (AVX-512 Xeon, 100k-tet beam: 33.2 against 38.6 and 39.9 M tet-steps/s;
-# 10k 34.8 -> 39.5, 1M 26.3 -> 30.0).  With -ffast-math it ran 43.2, reassociating as softsim
+# vectoriser (``warp.config.cpu_compiler_flags``).  AVX-512 Xeon, 100k-tet beam, M tet-steps/s:
+# the default 33.2, ``-march=native`` alone 38.1, with -O3 38.6, with contraction too 39.9 (1.20x;
+# 10k 34.8 -> 39.5, 1M 26.3 -> 30.0); Warp's ``optimization_level`` 3 (its back end's; 2 by
+# default on the CPU) 40.1 against 39.7.  With -ffast-math it ran 43.2, reassociating as softsim
 # does not.
 WARP_CPU_COMPILER_FLAGS = "-march=native -O3 -ffp-contract=fast"
 
@@ -150,7 +151,7 @@ def _warp_kernels():
 
     wp.config.quiet = True
     wp.init()
-    wp.set_module_options({"cpu_compiler_flags": WARP_CPU_COMPILER_FLAGS})
+    wp.set_module_options({"cpu_compiler_flags": WARP_CPU_COMPILER_FLAGS, "optimization_level": 3})
 
     @wp.kernel
     def eval_tets(x: wp.array(dtype=wp.vec3d), tets: wp.array(dtype=wp.int32, ndim=2),
