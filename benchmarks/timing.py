@@ -23,10 +23,14 @@ def calibrate(runner, seconds):
 def interleaved(runners, seconds, repeats):
     """``{name: [M tet-steps/s per round]}`` timing each runner of ``runners`` (name -> runner) in turn.
 
-    A runner has ``tet_count`` and ``run(steps)``; a callable entry ``name -> f()`` returning a rate in
-    M/s (the STREAM bound) is called as is.
+    A runner has ``tet_count`` and ``run(steps)``, and may have ``settle(steps)``, called once after
+    its calibration, before the rounds; a callable entry ``name -> f()`` returning a rate in M/s
+    (the STREAM bound) is called as is.
     """
     steps = {name: calibrate(r, seconds) for name, r in runners.items() if hasattr(r, "run")}
+    for name, r in runners.items():
+        if hasattr(r, "settle"):
+            r.settle(steps[name])
     rates = {name: [] for name in runners}
     for _ in range(repeats):
         for name, r in runners.items():
