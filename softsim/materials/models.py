@@ -124,10 +124,10 @@ def stvk_first_piola(F, lam, mu):
 @njit
 def stvk_weighted_first_piola(F, weight, lam, mu):
     """``weight P`` [Pa times weight's unit] of ``stvk_first_piola``: ``F S'``, ``S' = weight mu G +
-    weight lam/2 tr(G) I`` with ``G = F^T F - I = 2E``, so that the weight and E's 1/2 cost two
-    multiplies, not fifteen.  The lane loops of ``kernels.blocked`` pass ``weight = -V0``."""
+    weight lam/2 tr(G) I`` with ``G = F^T F - I = 2E``: the weight costs two multiplies a lane and
+    E's 1/2 none.  The lane loops of ``kernels.blocked`` pass ``weight = -V0``."""
     G = mat3_add_diagonal(mat3_transpose_mul(F, F), -1.0)
-    return mat3_mul(F, mat3_add_diagonal(mat3_scale(G, weight * mu), 0.5 * weight * lam * mat3_trace(G)))
+    return mat3_mul(F, mat3_add_diagonal(mat3_scale(G, weight * mu), weight * (0.5 * lam) * mat3_trace(G)))
 
 
 @njit
