@@ -12,10 +12,10 @@ import numba
 import numpy as np
 
 from softsim.config import parse_scene
-from softsim.integrators.symplectic_euler import TRIAL_CALLS, work_buffer
+from softsim.integrators.symplectic_euler import work_buffer
 from softsim.kernels.blocked import build_block_layout
 from softsim.model import initial_state
-from softsim.simulation import prepare, step
+from softsim.simulation import PREFETCH_CHOICES, prepare, step
 
 YOUNGS_MODULUS = 1e8
 POISSONS_RATIO = 0.3
@@ -68,9 +68,8 @@ class Softsim:
         so that the timed rounds run the way a long run keeps.  Inside the rounds, half of the
         trial's calls ran the slower way: on the 2M beam the median of 7 rounds came out at 136-143
         M tet-steps/s, the faster way running 154-160."""
-        if self.model.blocks.measure_prefetch:
-            for _ in range(2 * (1 + TRIAL_CALLS)):
-                self.run(steps)
+        while any(choice.trying for choice in PREFETCH_CHOICES.get(self.model.blocks, {}).values()):
+            self.run(steps)
 
     def positions(self):
         """Positions [m] (n, 3) in softsim's internal vertex order."""

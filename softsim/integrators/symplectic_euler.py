@@ -285,9 +285,14 @@ class PrefetchChoice:
         self.kept_calls_left = 0
         self.prefetch = True
 
+    @property
+    def trying(self):
+        """Whether the calls now are a trial's, not the kept way's."""
+        return self.kept_calls_left == 0
+
     def prefetch_next(self):
         """Whether the next call fetches ahead."""
-        if self.kept_calls_left > 0:
+        if not self.trying:
             return self.prefetch
         return (self.trial_call + 1) // 2 % 2 == 0
 
@@ -295,7 +300,7 @@ class PrefetchChoice:
         """Note a call (``prefetched`` as ``prefetch_next`` said) that took ``seconds`` for ``steps`` steps."""
         if steps <= 0:
             return
-        if self.kept_calls_left > 0:
+        if not self.trying:
             self.kept_calls_left -= 1
             return
         if self.trial_call >= 2:

@@ -98,7 +98,7 @@ def hooke_energy_density(strain, lam, mu):
 
 @njit
 def linear_first_piola(F, lam, mu):
-    return hooke_stress(small_strain(F), lam, mu)
+    return linear_weighted_first_piola(F, 1.0, lam, mu)
 
 
 @njit
@@ -118,7 +118,7 @@ def linear_energy_density(F, lam, mu):
 
 @njit
 def stvk_first_piola(F, lam, mu):
-    return mat3_mul(F, hooke_stress(green_strain(F), lam, mu))
+    return stvk_weighted_first_piola(F, 1.0, lam, mu)
 
 
 @njit
