@@ -430,3 +430,22 @@ def test_vertex_tet_csr_covers_every_corner_once():
         assert np.all(np.diff(mine) > 0)                             # fixed summation order
         expected = sorted(4 * e + c for e in range(tet_count) for c in range(4) if body.tets[e, c] == i)
         assert mine.tolist() == expected
+
+
+def test_fused_matrix_products_equal_numpy_and_sum_onto_c_in_order():
+    """``mat3_mul_add`` and ``mat3_transpose_mul_add`` (the float32 StVK law's ``H^T H + (H + H^T)``
+    and ``S + H S``) are ``c + a @ b`` and ``c + a.T @ b``, each entry's three products added onto
+    ``c``'s one after the other, the transpose the same sums with ``a``'s entries renamed."""
+    from softsim.kernels.mat3 import mat3_mul_add, mat3_transpose_mul_add
+
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        a, b, c = (rng.standard_normal((3, 3)) for _ in range(3))
+        t = lambda m: tuple(m.ravel())
+        np.testing.assert_allclose(np.reshape(mat3_mul_add(t(a), t(b), t(c)), (3, 3)), c + a @ b, rtol=1e-13, atol=1e-14)
+        np.testing.assert_allclose(np.reshape(mat3_transpose_mul_add(t(a), t(b), t(c)), (3, 3)), c + a.T @ b,
+                                   rtol=1e-13, atol=1e-14)
+        in_order = [((c[i, j] + a[i, 0] * b[0, j]) + a[i, 1] * b[1, j]) + a[i, 2] * b[2, j]
+                    for i in range(3) for j in range(3)]
+        assert mat3_mul_add.py_func(t(a), t(b), t(c)) == tuple(in_order)   # interpreted: compiled, contraction fuses them
+        assert mat3_transpose_mul_add(t(a), t(b), t(c)) == mat3_mul_add(t(a.T.copy()), t(b), t(c))

@@ -221,7 +221,6 @@ def test_symplectic_euler_is_stable_below_the_limit_and_blows_up_above(scene, me
         assert energies.max() > 1e6 * energies[0]
 
 
-
 @pytest.mark.parametrize("model_name", MODELS)
 def test_the_operator_takes_the_steps_blocked_forces_equal_to_the_per_tet_ones(scene, model_name):
     """The operator's force evaluations run the step's blocked kernels where the model steps in

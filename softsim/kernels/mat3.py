@@ -82,16 +82,8 @@ def mat3_mul_add(a, b, c):
 
 @njit
 def mat3_transpose_mul_add(a, b, c):
-    """``c + a.T @ b``, summed as ``mat3_mul_add``."""
-    return (((c[0] + a[0] * b[0]) + a[3] * b[3]) + a[6] * b[6],
-            ((c[1] + a[0] * b[1]) + a[3] * b[4]) + a[6] * b[7],
-            ((c[2] + a[0] * b[2]) + a[3] * b[5]) + a[6] * b[8],
-            ((c[3] + a[1] * b[0]) + a[4] * b[3]) + a[7] * b[6],
-            ((c[4] + a[1] * b[1]) + a[4] * b[4]) + a[7] * b[7],
-            ((c[5] + a[1] * b[2]) + a[4] * b[5]) + a[7] * b[8],
-            ((c[6] + a[2] * b[0]) + a[5] * b[3]) + a[8] * b[6],
-            ((c[7] + a[2] * b[1]) + a[5] * b[4]) + a[8] * b[7],
-            ((c[8] + a[2] * b[2]) + a[5] * b[5]) + a[8] * b[8])
+    """``c + a.T @ b``, summed as ``mat3_mul_add`` (the transpose only renames entries)."""
+    return mat3_mul_add(mat3_transpose(a), b, c)
 
 
 @njit
