@@ -15,7 +15,7 @@ from softsim.config import parse_scene
 from softsim.integrators.symplectic_euler import work_buffer
 from softsim.kernels.blocked import build_block_layout
 from softsim.model import initial_state
-from softsim.simulation import PREFETCH_CHOICES, prepare, step
+from softsim.simulation import prefetch_trial_running, prepare, step
 
 YOUNGS_MODULUS = 1e8
 POISSONS_RATIO = 0.3
@@ -68,7 +68,7 @@ class Softsim:
         so that the timed rounds run the way a long run keeps.  Inside the rounds, half of the
         trial's calls ran the slower way: on the 2M beam the median of 7 rounds came out at 136-143
         M tet-steps/s, the faster way running 154-160."""
-        while any(choice.trying for choice in PREFETCH_CHOICES.get(self.model.blocks, {}).values()):
+        while prefetch_trial_running(self.model):
             self.run(steps)
 
     def positions(self):

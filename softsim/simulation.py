@@ -189,6 +189,13 @@ PART_SCHEDULE = PartSchedule()
 PREFETCH_CHOICES = weakref.WeakKeyDictionary()
 
 
+def prefetch_trial_running(model):
+    """Whether the step of ``model`` is still timing its prefetches against none for some thread
+    count (``PrefetchChoice.trying``): half of such a trial's calls run the slower way, so a caller
+    who times the step (a benchmark) ends the trial first.  False for a mesh that does not measure."""
+    return any(choice.trying for choice in PREFETCH_CHOICES.get(model.blocks, {}).values())
+
+
 def step(model, state, dt, step_count, damping, work):
     """Advance ``state`` in place by ``step_count`` symplectic-Euler steps of ``dt`` [s]; work: the
     buffer of ``work_buffer(model)``.  A float32 model steps displacements in float32

@@ -204,13 +204,15 @@ def test_a_measured_prefetch_runs_both_ways_with_the_same_bits(monkeypatch):
     monkeypatch.setattr(simulation, "step_arguments",
                         lambda m, work, prefetch=True: ways.append(prefetch) or original(m, work, prefetch))
     results = []
+    calls = 2 * (1 + TRIAL_CALLS)
     for layout in (always, measured):
         m = dataclasses.replace(model, blocks=layout)
         state, work = initial_state(prepared.scene, m), work_buffer(m)
-        for _ in range(2 * (1 + TRIAL_CALLS)):
+        for call in range(calls):
             simulation.step(m, state, prepared.plan.dt, 3, 0.0, work)
+            # the trial runs from the first call to the last of its calls, and only where measured
+            assert simulation.prefetch_trial_running(m) == (layout is measured and call < calls - 1)
         results.append(state.x.tobytes() + state.v.tobytes())
-    calls = 2 * (1 + TRIAL_CALLS)
     # the measured layout's first call first compiles the way without prefetches (a call of no step)
     assert ways[:calls] == [True] * calls
     assert ways[calls:] == [False] + [True, False, False, True] * ((1 + TRIAL_CALLS) // 2)
