@@ -4,7 +4,8 @@ vertex update, timed alone and added one after the other, against the whole step
     python -m benchmarks.phases [--model stvk] [--tets 100000] [--precision float64] [--rounds 9]
 
 Each variant walks every block (or vertex) of the benchmark beam in order, as one thread of the
-step does, on the step's own arrays (so their data come from where the step's come from: cache or memory):
+step does, on the step's own arrays (so their data come from where the step's come from: cache
+or memory):
 
 - ``gather``: the corners' positions into the block's scratch buffer (``gather_corners``);
 - ``gather + lanes``: and the material law's lane loop over the block (``model_forces``);
