@@ -449,3 +449,13 @@ def test_fused_matrix_products_equal_numpy_and_sum_onto_c_in_order():
                     for i in range(3) for j in range(3)]
         assert mat3_mul_add.py_func(t(a), t(b), t(c)) == tuple(in_order)   # interpreted: compiled, contraction fuses them
         assert mat3_transpose_mul_add(t(a), t(b), t(c)) == mat3_mul_add(t(a.T.copy()), t(b), t(c))
+
+
+def test_det_from_cofactor_is_the_determinant():
+    """``mat3_det_from_cofactor(a, mat3_cofactor(a))`` is ``det a`` (NumPy's), singular ``a`` too."""
+    from softsim.kernels.mat3 import mat3_cofactor, mat3_det_from_cofactor
+
+    rng = np.random.default_rng(11)
+    for a in [rng.standard_normal((3, 3)) for _ in range(20)] + [np.array([[1.0, 2, 3], [2, 4, 6], [0, 1, 5]])]:
+        t = tuple(a.ravel())
+        assert mat3_det_from_cofactor(t, mat3_cofactor(t)) == pytest.approx(np.linalg.det(a), rel=1e-12, abs=1e-13)

@@ -35,6 +35,7 @@ from ..kernels.mat3 import (
     mat3_ddot,
     mat3_ddot_inline,
     mat3_det,
+    mat3_det_from_cofactor,
     mat3_mul,
     mat3_mul_add,
     mat3_scale,
@@ -270,7 +271,7 @@ def neohookean_weighted_first_piola_displacement(H, weight, lam, mu):
     """
     tr = mat3_trace(H)
     cof_H = mat3_cofactor(H)
-    J_minus_1 = tr + mat3_trace(cof_H) + (H[0] * cof_H[0] + H[1] * cof_H[1] + H[2] * cof_H[2])
+    J_minus_1 = tr + mat3_trace(cof_H) + mat3_det_from_cofactor(H, cof_H)
     Ic_minus_3 = _TWO * tr + mat3_ddot(H, H)
     a = _THREE_QUARTERS * mu
     b = mu * (Ic_minus_3 / (_FOUR * (_FOUR + Ic_minus_3)))
