@@ -5,6 +5,8 @@ import csv
 import os
 import time
 
+from . import targets
+
 COLUMNS = ("section", "case", "tets", "runner", "threads", "rate", "ratio", "ratio_to", "note")
 HEADERS = ("case", "tets", "runner", "threads", "M tet-steps/s", "ratio", "ratio of", "note")
 
@@ -31,6 +33,10 @@ def write(rows, folder, machine, quick):
                 f"{' (--quick)' if quick else ''}. Rates: medians of interleaved rounds in one process; "
                 f"ratios: medians of per-round ratios. Regenerate: `python -m benchmarks`.\n")
         for section in dict.fromkeys(r["section"] for r in rows):
+            if section == "targets":               # the targets, judged (``targets.py``)
+                judged = [r for r in rows if r["section"] == section]
+                f.write(f"\n## targets\n\n{targets.summary(judged)}.\n\n{targets.markdown(judged)}")
+                continue
             f.write(f"\n## {section}\n\n| " + " | ".join(HEADERS) + " |\n|" + "---|" * len(HEADERS) + "\n")
             for r in rows:
                 if r["section"] == section:
