@@ -357,8 +357,10 @@ def _simulate(prepared, output_path, progress, should_stop, resume, compiled):
 
 # A run estimated to take longer than this [s of wall time] starts only when confirmed (--yes).
 LONG_RUN_S = 3600.0
-# Above any speed softsim reaches [tet-steps/s]: a run short even at this speed is not measured.
-OPTIMISTIC_TET_STEPS_PER_S = 1e9
+# Below any speed softsim falls to [tet-steps/s] (a few hundred tets on one thread step at about
+# 3e7): a run shorter than LONG_RUN_S even at this speed is not measured.  The measuring burst
+# costs SPEED_SAMPLE_S, under 1 % of a run it measures at the speeds softsim reaches (1e8-3e8).
+SLOWEST_TET_STEPS_PER_S = 2e6
 # Wall time [s] of the burst of steps that measures this machine's speed for a long run.
 SPEED_SAMPLE_S = 0.3
 
@@ -366,8 +368,9 @@ SPEED_SAMPLE_S = 0.3
 @dataclass(frozen=True)
 class RunEstimate:
     """What a prepared run will cost: ``tet_steps`` (sub-steps counted), ``seconds`` of wall time
-    at ``tet_steps_per_s`` measured on this machine (None when the run is short even at an
-    optimistic speed, so nothing was measured), and the output file's size against the free disk."""
+    at ``tet_steps_per_s`` measured on this machine (both None when the run is short even at the
+    slowest speed, ``SLOWEST_TET_STEPS_PER_S``, so nothing was measured), and the output file's size
+    against the free disk."""
 
     tets: int
     steps: int
@@ -411,12 +414,12 @@ def frame_bytes(node_count, tet_count, fields):
 
 def estimate_run(prepared, output_path):
     """A ``RunEstimate`` for ``prepared``: its speed is measured by a short burst of steps on a copy
-    of the initial state, only when the run could be long (the burst also compiles the kernels,
-    which the run would do anyway)."""
+    of the initial state, only when the run could be long at the slowest speed (the burst also
+    compiles the kernels, which the run would do anyway)."""
     scene, model, plan = prepared.scene, prepared.model, prepared.plan
     tet_steps = float(model.tet_count) * plan.total_steps * prepared.substeps
-    seconds, speed = None, OPTIMISTIC_TET_STEPS_PER_S
-    if tet_steps / OPTIMISTIC_TET_STEPS_PER_S > LONG_RUN_S:
+    seconds, speed = None, None
+    if tet_steps / SLOWEST_TET_STEPS_PER_S > LONG_RUN_S:
         state = initial_state(scene, model)
         buffer = work_buffer(model)
         advance_substeps(model, state, plan.dt, 1, prepared.substeps, scene.damping, buffer)   # compile
