@@ -19,7 +19,7 @@ from .config import scene_to_yaml
 from .integrators.symplectic_euler import (PartSchedule, PrefetchChoice, advance, step_arguments, step_threads,
                                            work_buffer)
 from .errors import ConfigError, SimulationError
-from .integrators.guard import RECHECK_STEPS, FrameGuard
+from .integrators.guard import RECHECK_STEPS, FrameGuard, ground_spring_energy
 from .integrators.stability import exact_stable_step, nodal_frequency_bound
 from .integrators.timestep import (AUTO_EIGEN_ITERATIONS, AUTO_EIGEN_MIN_STEPS, AUTO_EIGEN_SAFETY, AUTO_SAFETY,
                                    dilatational_wave_speed, plan_time)
@@ -138,6 +138,8 @@ def prepare(scene, mesh=None):
     build its model and time plan; raises ``SoftsimError`` on bad input."""
     mesh = build_mesh(scene.mesh) if mesh is None else mesh
     model = build_model(scene, mesh)
+    if model.has_ground:
+        warn_of_start_in_ground(scene, model)
     material = scene.material
     wave_speed = dilatational_wave_speed(material.youngs_modulus, material.poissons_ratio, material.density)
     dt_estimate = stable_dt_estimate(model)
@@ -153,6 +155,19 @@ def prepare(scene, mesh=None):
         plan = plan_time(scene.time.duration, scene.output.frame_interval, dt=dt)
     return Prepared(scene=scene, model=model, plan=plan, dt_estimate=dt_estimate, safe_dt=safe_dt,
                     substeps=substeps, wave_speed=wave_speed)
+
+
+def warn_of_start_in_ground(scene, model):
+    """Log a warning when free vertices start below the ground: its penalty springs then start
+    compressed and push the body out (the guard counts their energy as put in)."""
+    x0 = initial_state(scene, model).x
+    below = (x0[:, 2] < model.ground_height) & ~model.held[:, 2]
+    if below.any():
+        log.warning("ground.height = %g m: %d vertices start below it (the deepest by %.3g m), so the ground's "
+                    "springs start compressed, with %.3g J, and push the body out; to start on the ground, lower "
+                    "ground.height or move the body (initial_deformation.translation)",
+                    model.ground_height, int(below.sum()), float(model.ground_height - x0[below, 2].min()),
+                    ground_spring_energy(model, x0))
 
 
 def frame_energy(model, state):

@@ -382,6 +382,32 @@ def test_dropped_cube_stops_on_the_ground_or_falls_through_without_one(scene, ha
         assert state.x[:, 2].max() < 0.0
 
 
+def test_a_cube_started_in_the_ground_is_pushed_out_with_the_energy_of_its_springs(scene, tmp_path, caplog):
+    """Started 2 mm into a stiff ground without gravity, the cube's bottom springs hold
+    1/2 k A d^2 = 0.8 J (A = 0.04 m^2; the side faces face no way down).  Released, they throw
+    the cube up: the run completes (the guard counts that energy as put in, and so does not take
+    it for a blow-up), warned that the body starts in the ground, and the cube never holds more
+    than the springs gave it."""
+    from softsim.integrators.guard import ground_spring_energy
+
+    depth, stiffness = 0.002, 1.0e7
+    s = scene(material={"model": "neohookean", "youngs_modulus": 1.0e7}, gravity=[0.0, 0.0, 0.0],
+              ground={"height": depth, "stiffness": stiffness}, time={"duration": 0.02},
+              output={"frame_interval": 0.002, "fields": ["energy"]})
+    with caplog.at_level("WARNING", logger="softsim"):
+        prepared = prepare(s)
+    assert "ground.height = 0.002 m: 9 vertices start below it" in caplog.text
+    stored = ground_spring_energy(prepared.model, initial_state(s, prepared.model).x)
+    assert stored == pytest.approx(0.5 * stiffness * A_CUBE ** 2 * depth ** 2, rel=1e-12)
+    summary = simulate(prepared, tmp_path / "out.h5")
+    assert summary.status == "complete"
+    with h5py.File(tmp_path / "out.h5", "r") as f:
+        kinetic, elastic = f["frames/energy/kinetic"][...], f["frames/energy/elastic"][...]
+        lowest = f["frames/points"][-1][:, 2].min()
+    assert (kinetic + elastic).max() <= stored * 1.05
+    assert kinetic[-1] > 0.5 * stored and lowest > depth           # thrown clear of the ground
+
+
 @pytest.mark.parametrize("friction", [0.5, 0.0])
 def test_sliding_cube_decelerates_with_friction_and_keeps_going_without(scene, friction):
     """Launched along the ground at v0 = (1, 0.5) m/s from its resting depth, no damping.

@@ -12,8 +12,9 @@ Explicit time stepping is only conditionally stable.  Every frame:
    ``dt_policy: refuse``;
 2. positions and velocities must be finite;
 3. the mechanical energy (kinetic + elastic) must stay below ``ENERGY_GUARD_FACTOR`` times what
-   could have been put in: its initial value, the work of gravity, of the tractions and of the
-   prescribed motion of held vertices;
+   could have been put in: its initial value, the energy of the ground's springs where the body
+   starts in the ground (``ground_spring_energy``), the work of gravity, of the tractions and of
+   the prescribed motion of held vertices;
 4. models that cannot handle inversion (``linear``, ``stvk``) must see no element with J <= 0.
 
 A failed check raises ``SimulationError`` naming the simulated time, the step and the element or
@@ -45,6 +46,24 @@ _INVERSION_SAFE_IDS = tuple(MODEL_IDS[name] for name in INVERSION_SAFE)
 _MODEL_NAMES = {v: k for k, v in MODEL_IDS.items()}
 
 
+def ground_spring_energy(model, x):
+    """Energy [J] held in the ground's penalty springs at positions ``x`` (n, 3) [m]:
+    ``sum_i 1/2 k A_i d_i^2`` over the vertices whose z is free, ``d_i`` their depth below the
+    ground where positive, ``A_i`` their share of the boundary area facing down, as the step
+    computes it (``symplectic_euler.part_face_areas``: a third of each face's area vector's z,
+    summed, where negative), k the ground's stiffness [Pa/m].  The step's contact force on a
+    vertex is ``k d_i A_i``.  0 without a ground."""
+    if not model.has_ground:
+        return 0.0
+    faces = model.boundary_faces
+    p = x[faces]
+    u, w = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
+    area_z = np.zeros(x.shape[0])
+    np.add.at(area_z, faces.ravel(), np.repeat((u[:, 0] * w[:, 1] - u[:, 1] * w[:, 0]) / 6.0, 3))
+    depth = np.where(model.held[:, 2], 0.0, np.maximum(model.ground_height - x[:, 2], 0.0))
+    return float(0.5 * model.ground_stiffness * (np.maximum(-area_z, 0.0) * depth ** 2).sum())
+
+
 class FrameGuard:
     """Checks a model's state once per frame (``check``) and tracks the energy put in.
 
@@ -64,7 +83,9 @@ class FrameGuard:
         self.substeps = 1
         self.x0 = state0.x.copy()
         self.gravity0 = gravity_energy(state0.x, model.mass, model.gravity)
-        self.mechanical0 = kinetic_energy(state0.v, model.mass) + self._elastic(state0.x)
+        # a body that starts in the ground is pushed out by its compressed springs: their energy too
+        self.mechanical0 = (kinetic_energy(state0.v, model.mass) + self._elastic(state0.x)
+                            + ground_spring_energy(model, state0.x))
         self.moving_held = np.flatnonzero((model.held & (model.held_velocity != 0.0)).any(axis=1))
         self.held_work = 0.0
         self.held_power = self._held_power(state0) if self.moving_held.size else 0.0
