@@ -10,6 +10,7 @@ from functools import cached_property
 
 import numpy as np
 
+from .errors import ConfigError
 from .kernels.blocked import build_block_layout, faces_by_part
 from .kernels.jit import CompileTimeConstant
 from .kernels.rest_state import lumped_masses, rest_state, vertex_tet_csr
@@ -141,6 +142,12 @@ def face_areas(points, faces):
     return 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
 
 
+def _extent_text(points):
+    """The bounding box of ``points`` (n, 3) [m] as text: ``x 0..1, y 0..0.25, z 0..0.25 m``."""
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    return ", ".join(f"{axis} {a:.4g}..{b:.4g}" for axis, a, b in zip("xyz", lo, hi)) + " m"
+
+
 def build_model(scene, mesh):
     """The ``Model`` of a validated scene (``softsim.config.Scene``) on its checked ``mesh``."""
     points, tets, vertex_order, tet_order = renumber_for_locality(mesh.points, mesh.tets)
@@ -160,16 +167,23 @@ def build_model(scene, mesh):
     np.add.at(boundary_area, faces.ravel(), np.repeat(areas / 3.0, 3))
 
     traction_force = np.zeros((n, 3))
-    for load in scene.tractions:
+    for k, load in enumerate(scene.tractions):
         on_face = in_box(points, load.min, load.max)[faces].all(axis=1)
+        if not on_face.any():
+            raise ConfigError(f"tractions[{k}]: the box min = {list(load.min)}, max = {list(load.max)} holds no "
+                              f"boundary face (all three corners inside) of the mesh, which spans "
+                              f"{_extent_text(points)}; a traction box must hold at least one")
         np.add.at(traction_force, faces[on_face].ravel(),
                   np.repeat(areas[on_face] / 3.0, 3)[:, None] * np.asarray(load.traction))
     gravity = np.asarray(scene.gravity, dtype=np.float64)
 
     held = np.zeros((n, 3), dtype=np.bool_)
     held_velocity = np.zeros((n, 3))
-    for box in scene.fixed:
+    for k, box in enumerate(scene.fixed):
         inside = in_box(points, box.min, box.max)
+        if not inside.any():
+            raise ConfigError(f"fixed[{k}]: the box min = {list(box.min)}, max = {list(box.max)} holds no vertex of "
+                              f"the mesh, which spans {_extent_text(points)}; a fixed box must hold at least one")
         for axis in box.axes:
             k = AXIS_INDEX[axis]
             held[inside, k] = True

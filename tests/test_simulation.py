@@ -14,6 +14,7 @@ import numba
 import numpy as np
 import pytest
 
+from softsim.errors import ConfigError
 from softsim.integrators.stability import exact_stable_step
 from softsim.integrators.symplectic_euler import work_buffer
 from softsim.integrators.timestep import AUTO_SAFETY
@@ -523,6 +524,22 @@ def test_held_vertices_follow_their_prescribed_motion(scene):
     # Free components really are free: the right face sagged under gravity (it is not held in z;
     # a held z would stay exactly at x0).
     assert (state.x[right, 2] < x0[right, 2] - 1e-3).all()
+
+
+@pytest.mark.parametrize("key, region, message", [
+    ("fixed", {"min": [0.21, -1, -1], "max": [0.3, 1, 1]}, "holds no vertex"),
+    # the box holds the corners of the x = 0.2 face but no whole face: its edge at z = 0.2 only
+    ("tractions", {"min": [0.2, -1, 0.2], "max": [0.2, 1, 1], "traction": [1e3, 0, 0]},
+     r"holds no boundary face \(all three corners inside\)"),
+])
+def test_a_region_that_selects_nothing_is_refused(scene, key, region, message):
+    """A fixed or traction box that misses the mesh would leave the body unheld or unloaded
+    without a word: refused, naming the key, the box and the mesh's extent."""
+    inside = dict(region, max=[0.2, 1, 1], min=[0.2 - TOL_BOX, -1, -1])
+    prepare(scene(**{key: [inside]}))                          # a box on the x = 0.2 face: fine
+    with pytest.raises(ConfigError, match=rf"^{key}\[1\]: the box min = .* {message} of the mesh, which spans "
+                                          r"x 0\.\.0\.2, y 0\.\.0\.2, z 0\.\.0\.2 m; a .* box must hold at least one$"):
+        prepare(scene(**{key: [inside, region]}))
 
 
 # ---------------------------------------------------------------------------------------------
