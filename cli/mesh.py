@@ -18,8 +18,9 @@ log = logging.getLogger("softsim")
 @scene_argument
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=str),
               help="Mesh file to write; the format follows the extension (.vtu, .msh, .xdmf, ...).")
+@click.option("--overwrite", is_flag=True, help="Replace an existing mesh file.")
 @set_option
-def mesh(scene, output, overrides):
+def mesh(scene, output, overwrite, overrides):
     """Mesh the solid of SCENE and write it to OUTPUT without simulating.
 
     \b
@@ -33,6 +34,12 @@ def mesh(scene, output, overrides):
     folder = Path(output).resolve().parent
     if not folder.is_dir():   # before meshing: a bad path costs no work
         raise SoftsimError(f"--output = '{output}': folder {folder} does not exist")
+    for name in (scene, scene_config.mesh.file):
+        if name and Path(name).resolve() == Path(output).resolve():
+            raise SoftsimError(f"--output = '{output}': is the scene's own file '{name}', which meshing reads; "
+                               f"choose another output name")
+    if Path(output).exists() and not overwrite:
+        raise SoftsimError(f"--output = '{output}': the file exists; pass --overwrite to replace it")
     tet_mesh = build_mesh(scene_config.mesh)
     log.info("mesh: %s", format_quality(tet_mesh.quality()))
     try:

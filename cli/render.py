@@ -29,7 +29,8 @@ def _size(ctx, param, value):
               help="Frames of an animation, Python slice syntax (default: all), e.g. ::2.")
 @click.option("--size", default="800x600", show_default=True, callback=_size, metavar="WxH", help="Picture size in pixels.")
 @click.option("--fps", type=click.FloatRange(min=0.1, max=100), default=None,
-              help="Animation frames per second (default: real time, 1 to 50).")
+              help="Animation frames per second, 0.1 to 100 (a .gif at most 50); default: real time, "
+                   "kept within 1 to 50.")
 @click.option("--view", type=click.Choice(list(VIEWS)), default="oblique", show_default=True,
               help="Camera direction: oblique (front right, above), iso, or along an axis (xz: front, xy: top, yz: side).")
 @click.option("--cmap", default="viridis", show_default=True, help="Matplotlib colour map name.")

@@ -83,7 +83,8 @@ def run(scene, output, overwrite, resume, yes, overrides):
     if resume:
         check_resumable(scene_config, scene_config.output.path)
     else:
-        check_writable(scene_config.output.path, overwrite)   # before meshing: a bad path costs no work
+        inputs = (scene,) + ((scene_config.mesh.file,) if scene_config.mesh.file else ())
+        check_writable(scene_config.output.path, overwrite, inputs)   # before meshing: a bad path costs no work
     prepared = prepare(scene_config)
     log.info("mesh: %s", format_quality(prepared.mesh.quality()))
     plan = prepared.plan
@@ -102,7 +103,8 @@ def run(scene, output, overwrite, resume, yes, overrides):
             bar.close()
     compiling = (f" ({summary.compile_time_s:.1f} s of it compiling the kernels, once: later runs load them from "
                  f"the cache)" if summary.compile_time_s >= COMPILE_NOTE_S else "")
-    click.echo(f"{summary.path}: {summary.steps} steps, dt {summary.dt:.4g} s, {summary.frames} frames, "
+    steps = f"{summary.steps}" if summary.status == "complete" else f"{summary.step} of {summary.steps}"
+    click.echo(f"{summary.path}: {steps} steps, dt {summary.dt:.4g} s, {summary.frames} frames, "
                f"wall {summary.wall_time_s:.2f} s{compiling}, {summary.tet_steps_per_s / 1e6:.3g} M tet-steps/s")
     if summary.status == "interrupted":
         click.echo(f"softsim: interrupted at t = {summary.time:.6g} s; {summary.frames} frames kept in "

@@ -77,6 +77,7 @@ class RunSummary:
     status: str = "complete"      # or "interrupted" (stopped on request after a whole frame)
     time: float = 0.0             # simulated time reached [s]
     compile_time_s: float = 0.0   # of the wall time, Numba compiling kernels its disk cache did not hold
+    step: int = 0                 # the planned step reached (``steps`` when complete)
 
 
 def stable_dt_estimate(model):
@@ -298,20 +299,20 @@ def simulate(prepared, output_path, progress=None, should_stop=None, resume=Fals
     """
     started = _time.perf_counter()
     with compile_timer() as compiled:
-        status, frames, steps_taken, time_reached = _simulate(prepared, output_path, progress, should_stop, resume,
+        status, frames, steps_taken, step_reached = _simulate(prepared, output_path, progress, should_stop, resume,
                                                               compiled)
     wall = _time.perf_counter() - started
     compiling = compiled()
     plan = prepared.plan
     return RunSummary(steps=plan.total_steps, dt=plan.dt, wall_time_s=wall,
                       tet_steps_per_s=prepared.model.tet_count * steps_taken / max(wall - compiling, 1e-12),
-                      frames=frames, path=str(output_path), status=status, time=time_reached,
-                      compile_time_s=compiling)
+                      frames=frames, path=str(output_path), status=status, time=step_reached * plan.dt,
+                      compile_time_s=compiling, step=step_reached)
 
 
 def _simulate(prepared, output_path, progress, should_stop, resume, compiled):
     """``simulate``'s run: returns its status, the frames in the file, the steps taken (sub-steps
-    counted) and the simulated time reached [s].  compiled: the compile time so far [s], a
+    counted) and the step of the plan reached.  compiled: the compile time so far [s], a
     function (``kernels.jit.compile_timer``), which the file records with its wall time."""
     scene, model, plan = prepared.scene, prepared.model, prepared.plan
     state = initial_state(scene, model)
@@ -367,7 +368,7 @@ def _simulate(prepared, output_path, progress, should_stop, resume, compiled):
                 break
         else:
             frames = writer.frame_count
-    return status, frames, steps_taken, state.step * plan.dt
+    return status, frames, steps_taken, state.step
 
 
 # A run estimated to take longer than this [s of wall time] starts only when confirmed (--yes).

@@ -293,6 +293,9 @@ BAD_INPUTS = [
      ["output.path", "nowhere/out.h5", "does not exist"]),
     ("output-is-a-folder", SCENE, ["-o", "."], ["'.'", "directory"]),
     ("output-named-like-the-xdmf", SCENE, ["-o", "run.xdmf"], ["run.xdmf", "XDMF", "out.h5"]),
+    # a folder that takes no new file (for root too): caught before meshing, not as a full disk
+    ("output-folder-takes-no-file", SCENE, ["-o", "/proc/out.h5"], ["output.path = '/proc/out.h5'", "folder /proc"]),
+    ("output-is-the-scene", SCENE, ["-o", "scene.yaml", "--overwrite"], ["scene.yaml", "the scene's own file"]),
     ("bad-set-syntax", SCENE, ["--set", "material.youngs_modulus"], ["material.youngs_modulus", "key.path=value"]),
     ("bad-dt", scene_with(("duration: 0.003", "duration: 0.003\n  dt: fast")), [],
      ["time.dt", "fast", "'auto', 'exact' or a positive number"]),

@@ -68,6 +68,9 @@ def test_a_signal_ends_the_run_after_a_whole_frame(tmp_path, sig):
         assert f["frames/time"][-1] < 1000.0
         state = read_resume_state(f)
         assert state["step"] > 0 and state["time"] == f["frames/time"][-1] and state["frames"] == k
+        planned = int(f.attrs["steps"])
+    # the summary line counts the steps done, not the planned ones
+    assert stdout.startswith(f"{out}: {state['step']} of {planned} steps, "), stdout
 
 
 def test_an_existing_output_is_not_overwritten_without_the_flag(tmp_path, monkeypatch):
@@ -88,6 +91,62 @@ def test_an_existing_output_is_not_overwritten_without_the_flag(tmp_path, monkey
     assert replaced.exit_code == 0, replaced.output
     with h5py.File(tmp_path / "out.h5") as f:
         assert f.attrs["status"] == "complete"
+
+
+def test_an_unfinished_run_is_not_overwritten_and_resume_is_named(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    scene = write_scene(tmp_path, 0.002)
+    with h5py.File(tmp_path / "out.h5", "w") as f:
+        f.attrs["status"] = "interrupted"
+    again = CliRunner().invoke(cli, ["run", str(scene)])
+    assert again.exit_code == 1
+    assert again.stderr.strip().splitlines() == [
+        "Error: output.path = 'out.h5': the file holds an unfinished run (status: interrupted); pass --resume to "
+        "continue it or --overwrite to replace it"]
+
+
+def test_an_existing_xdmf_is_not_overwritten_without_the_flag(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    scene = write_scene(tmp_path, 0.002)
+    (tmp_path / "out.xdmf").write_text("my notes\n")
+    runner = CliRunner()
+    again = runner.invoke(cli, ["run", str(scene)])
+    assert again.exit_code == 1
+    assert again.stderr.strip().splitlines() == [
+        "Error: output.path = 'out.h5': the XDMF file out.xdmf written beside it exists; pass --overwrite to "
+        "replace it"]
+    assert (tmp_path / "out.xdmf").read_text() == "my notes\n" and not (tmp_path / "out.h5").exists()
+    assert runner.invoke(cli, ["run", str(scene), "--overwrite"]).exit_code == 0
+    assert "<Xdmf" in (tmp_path / "out.xdmf").read_text()
+
+
+@pytest.mark.parametrize("command", ["run", "mesh"])
+def test_the_scene_and_its_mesh_file_are_never_written_over(tmp_path, monkeypatch, command):
+    monkeypatch.chdir(tmp_path)
+    runner = CliRunner()
+    assert runner.invoke(cli, ["mesh", str(write_scene(tmp_path, 0.002)), "-o", "bar.vtu"]).exit_code == 0
+    scene = tmp_path / "file.yaml"
+    scene.write_text(SCENE.replace("DURATION", "0.002").replace(
+        "{shape: box, size: [0.3, 0.1, 0.1], element_size: 0.05, structured: true}", "{shape: file, file: bar.vtu}"))
+    before = {name: (tmp_path / name).read_bytes() for name in ("file.yaml", "bar.vtu")}
+    for name in before:
+        result = runner.invoke(cli, [command, str(scene), "-o", name, "--overwrite"])
+        assert result.exit_code == 1
+        assert "is the scene's own file" in result.stderr and "choose another" in result.stderr, result.stderr
+    assert {name: (tmp_path / name).read_bytes() for name in before} == before
+
+
+def test_mesh_does_not_overwrite_without_the_flag(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    scene = write_scene(tmp_path, 0.002)
+    runner = CliRunner()
+    (tmp_path / "bar.vtu").write_text("mine\n")
+    result = runner.invoke(cli, ["mesh", str(scene), "-o", "bar.vtu"])
+    assert result.exit_code == 1
+    assert result.stderr.strip().splitlines() == [
+        "Error: --output = 'bar.vtu': the file exists; pass --overwrite to replace it"]
+    assert (tmp_path / "bar.vtu").read_text() == "mine\n"
+    assert runner.invoke(cli, ["mesh", str(scene), "-o", "bar.vtu", "--overwrite"]).exit_code == 0
 
 
 def _stop_after(frames):

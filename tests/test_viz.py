@@ -143,9 +143,19 @@ def test_render_cli_writes_mp4(bar, tmp_path):
     import imageio.v3 as iio
 
     mp4 = tmp_path / "bar.mp4"
-    run_cli("render", bar, "-o", mp4, "--size", "170x130", "--fps", "5")
+    result = run_cli("render", bar, "-o", mp4, "--size", "170x130", "--fps", "5")
     frames = iio.imread(mp4, index=None, plugin="FFMPEG")
-    assert frames.shape[0] == 3 and frames.shape[1:3] == (128, 160)     # sides cut to multiples of 16
+    assert frames.shape[0] == 3 and frames.shape[1:3] == (128, 160)     # sides cut to multiples of 16, and said so
+    assert "--size 170x130: the .mp4 is 160x128 (video codecs take sides that are multiples of 16)" in result.output
+
+
+def test_render_refuses_a_gif_faster_than_its_players_play(bar, tmp_path):
+    gif = tmp_path / "bar.gif"
+    result = run_cli("render", bar, "-o", gif, "--fps", "80", ok=False)
+    assert result.exit_code == 1 and not gif.exists()
+    assert result.output.strip().splitlines()[-1].startswith("Error: --fps = 80: a .gif plays at most 50 frames per "
+                                                             "second")
+    run_cli("render", bar, "-o", gif, "--fps", "50", "--frames", "0:2", "--size", "64x48")
 
 
 def test_boundary_faces_of_a_cube_are_outward_and_cover_its_surface():

@@ -31,6 +31,7 @@ has no journal).  An XDMF file beside it (``out.xdmf``) lets ParaView play the f
 import os
 import shutil
 import signal
+import tempfile
 import time as _time
 import zlib
 from pathlib import Path
@@ -63,9 +64,11 @@ def xdmf_path_for(path):
     return Path(path).with_suffix(".xdmf")
 
 
-def check_writable(path, overwrite=True):
-    """Raise ``SimulationError`` if ``path``'s folder is missing or not writable, or if ``path``
-    exists and ``overwrite`` is False (checked before any work)."""
+def check_writable(path, overwrite=True, inputs=()):
+    """Raise ``SimulationError`` unless a run can write ``path`` and its XDMF file (checked before any
+    work): the folder must exist and take a new file, ``path`` must not be one of ``inputs`` (the
+    scene's own files, never written over), and unless ``overwrite`` neither ``path`` nor the XDMF
+    file beside it may exist."""
     folder = Path(path).resolve().parent
     if not folder.is_dir():
         raise SimulationError(f"output.path = '{path}': folder {folder} does not exist")
@@ -73,11 +76,40 @@ def check_writable(path, overwrite=True):
         raise SimulationError(f"output.path = '{path}': folder {folder} is not writable")
     if Path(path).is_dir():
         raise SimulationError(f"output.path = '{path}': is a directory, expected a file name like out.h5")
-    if not overwrite and Path(path).exists():
-        raise SimulationError(f"output.path = '{path}': the file exists; pass --overwrite to replace it")
     if xdmf_path_for(path).resolve() == Path(path).resolve():
         raise SimulationError(f"output.path = '{path}': is the name of the XDMF file written beside the "
                               f"HDF5 file; use an HDF5 name like out.h5")
+    for name in inputs:
+        if Path(name).resolve() == Path(path).resolve():
+            raise SimulationError(f"output.path = '{path}': is the scene's own file '{name}', which the run "
+                                  f"reads; choose another output name")
+    if not overwrite:
+        unfinished = _unfinished_status(path)
+        if unfinished:
+            raise SimulationError(f"output.path = '{path}': the file holds an unfinished run (status: "
+                                  f"{unfinished}); pass --resume to continue it or --overwrite to replace it")
+        if Path(path).exists():
+            raise SimulationError(f"output.path = '{path}': the file exists; pass --overwrite to replace it")
+        if xdmf_path_for(path).exists():
+            raise SimulationError(f"output.path = '{path}': the XDMF file {xdmf_path_for(path)} written beside "
+                                  f"it exists; pass --overwrite to replace it")
+    try:
+        with tempfile.NamedTemporaryFile(dir=folder, prefix=".softsim-write-check-"):
+            pass
+    except OSError as exc:
+        raise SimulationError(f"output.path = '{path}': cannot create a file in folder {folder} "
+                              f"({exc.strerror or exc})") from None
+
+
+def _unfinished_status(path):
+    """The status of the unfinished softsim run in ``path`` (running, interrupted or failed), or
+    None: no such file, no softsim output file, or a complete run."""
+    try:
+        with h5py.File(path, "r") as f:
+            status = str(f.attrs.get("status", ""))
+    except OSError:
+        return None
+    return status if status in ("running", "interrupted", "failed") else None
 
 
 class RunWriter:

@@ -8,6 +8,7 @@ server is needed: VTK's wheel renders through EGL or OSMesa when there is no dis
 """
 
 import contextlib
+import logging
 import os
 from pathlib import Path
 
@@ -17,7 +18,11 @@ from ..errors import PLOT_EXTRA, MissingDependencyError
 from ..io.fields import FIELDS
 from .results import ResultsError, open_results
 
+log = logging.getLogger("softsim")
+
 FORMATS = (".png", ".gif", ".mp4")
+# GIF frame delays count hundredths of a second, and players slow delays under 0.02 s down.
+GIF_MAX_FPS = 50.0
 # Direction from the focal point to the camera, and the view-up vector.
 VIEWS = {
     "oblique": ((0.55, -1.0, 0.5), (0.0, 0.0, 1.0)),
@@ -260,7 +265,8 @@ def render(path, output, field=None, frame=None, frames=None, size=(800, 600), f
     ``.gif`` or ``.mp4`` (the frames ``frames``, slice text like ``0:100:2``, default all).
 
     field: see ``field_choices`` (default ``von_mises`` if stored, else displacement magnitude);
-    size: (width, height) pixels; fps: animation frame rate (default real time, capped to 1-50).
+    size: (width, height) pixels (an .mp4's rounded down to multiples of 16); fps: animation frame
+    rate (a .gif's at most ``GIF_MAX_FPS``; default real time, within 1 to 50).
     Returns ``output``.
     """
     output = Path(output)
@@ -273,11 +279,19 @@ def render(path, output, field=None, frame=None, frames=None, size=(800, 600), f
         raise ResultsError("--frames selects the frames of an animation; for a .png use --frame N")
     if suffix != ".png" and frame is not None:
         raise ResultsError("--frame picks the frame of a .png; for an animation use --frames START:STOP:STEP")
+    if suffix == ".gif" and fps is not None and fps > GIF_MAX_FPS:
+        raise ResultsError(f"--fps = {fps:g}: a .gif plays at most {GIF_MAX_FPS:g} frames per second (its frame "
+                           f"delays count hundredths of a second, and players slow shorter ones down); use "
+                           f"--fps {GIF_MAX_FPS:g} or less, or an .mp4")
     with open_results(path) as results:
         indices = [results.check_frame(-1 if frame is None else frame)] if suffix == ".png" \
             else results.select_frames(frames)
         if suffix == ".mp4":   # video codecs want sides that are multiples of 16
-            size = tuple(max(16, 16 * (int(side) // 16)) for side in size)
+            fitted = tuple(max(16, 16 * (int(side) // 16)) for side in size)
+            if fitted != tuple(size):
+                log.info("--size %dx%d: the .mp4 is %dx%d (video codecs take sides that are multiples of 16)",
+                         *size, *fitted)
+            size = fitted
         renderer = Renderer(results, indices, field, size, view, cmap, show_edges)
         try:
             if suffix == ".png":
