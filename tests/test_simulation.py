@@ -263,10 +263,14 @@ def test_auto_dt_fits_whole_steps_per_frame_and_respects_the_stable_step(scene):
     ("auto", 0.025, 0.1),
     (0.003, 0.01, 0.05),     # given dt: frames every round(0.01 / 0.003) = 3 steps = 0.009 s
 ])
-def test_output_frames_hold_true_times_and_end_at_the_end(scene, tmp_path, dt, frame_interval, duration):
+def test_output_frames_hold_true_times_and_end_at_the_end(scene, tmp_path, caplog, dt, frame_interval, duration):
     # dt_policy allow: the given dt is used as given (this one is within the true limit).
     s = scene(time={"duration": duration, "dt": dt, "dt_policy": "allow"}, output={"frame_interval": frame_interval})
-    prepared = prepare(s)
+    with caplog.at_level("WARNING", logger="softsim"):
+        prepared = prepare(s)
+    moved = "time.dt = 0.003 s does not fit output.frame_interval = 0.01 s a whole number of times: frames come " \
+            "every 3 steps, 0.009 s"
+    assert (moved in caplog.text) == (dt == 0.003), caplog.text
     plan = prepared.plan
     out = tmp_path / "run.h5"
     summary = simulate(prepared, out)
@@ -296,6 +300,15 @@ def test_output_frames_hold_true_times_and_end_at_the_end(scene, tmp_path, dt, f
     run_steps(prepared_again, state, corner, plan.total_steps)
     np.testing.assert_array_equal(points[-1], prepared_again.model.to_user_order(state.x))
     np.testing.assert_array_equal(points[0], prepared.mesh.points)   # no initial deformation
+
+
+def test_auto_dt_fits_a_run_shorter_than_a_frame(scene):
+    """A frame interval longer than the run (or a run shorter than a step): dt fits the duration,
+    so the run ends at it instead of a step or a frame interval later, with its one frame there."""
+    for duration in (0.005, 1e-9):
+        plan = prepare(scene(time={"duration": duration}, output={"frame_interval": 1.0})).plan
+        assert plan.total_steps * plan.dt == pytest.approx(duration, rel=1e-12)
+        assert plan.frame_steps == (0, plan.total_steps)
 
 
 # ---------------------------------------------------------------------------------------------

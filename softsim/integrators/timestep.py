@@ -1,10 +1,13 @@
 """Time-step choice: a stable step estimate and the plan of steps and frames."""
 
+import logging
 import math
 from dataclasses import dataclass
 
 from ..errors import ConfigError
 from ..materials.lame import lame_parameters
+
+log = logging.getLogger("softsim")
 
 # dt: auto is the larger of two steps, both below symplectic Euler's limit 2 / omega_max at rest:
 #
@@ -64,19 +67,25 @@ def plan_time(duration, frame_interval, dt=None, max_dt=None):
     """A ``TimePlan`` for ``duration`` [s] with a frame every ``frame_interval`` [s].
 
     With ``max_dt`` (``auto``, ``exact``), dt is the largest step not above ``max_dt`` that fits a
-    whole number of times into ``frame_interval``.  With a given ``dt``, frames fall on the
-    nearest whole number of steps to ``frame_interval``.  The last frame is at the end of the run,
-    ``total_steps * dt >= duration``.
+    whole number of times into ``frame_interval`` (into ``duration``, where that is shorter: one
+    frame at the end).  With a given ``dt``, frames fall on the nearest whole number of steps to
+    ``frame_interval``, with a warning where that moves them.  The last frame is at the end of
+    the run, ``total_steps * dt >= duration``.
     """
     frames = duration / frame_interval
     if not frames <= MAX_FRAMES:
         raise ConfigError(f"output.frame_interval = {frame_interval:g}: with time.duration = {duration:g} s that is "
                           f"{frames:.3g} frames; at most {MAX_FRAMES:.0e} are allowed")
     if dt is None:
-        steps_per_frame = max(1, math.ceil(frame_interval / max_dt - 1e-9))
-        dt = frame_interval / steps_per_frame
+        interval = min(frame_interval, duration)
+        steps_per_frame = max(1, math.ceil(interval / max_dt - 1e-9))
+        dt = interval / steps_per_frame
     else:
         steps_per_frame = max(1, round(frame_interval / dt))
+        if abs(steps_per_frame * dt - frame_interval) > 1e-9 * frame_interval and frame_interval < duration:
+            log.warning("time.dt = %g s does not fit output.frame_interval = %g s a whole number of times: "
+                        "frames come every %d steps, %.6g s", dt, frame_interval, steps_per_frame,
+                        steps_per_frame * dt)
     if not duration / dt <= MAX_STEPS:
         raise ConfigError(f"time.duration = {duration:g}: with dt = {dt:.3g} s that is {duration / dt:.3g} steps; "
                           f"at most {MAX_STEPS:.0e} are allowed")
