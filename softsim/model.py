@@ -167,10 +167,10 @@ def build_model(scene, mesh):
     np.add.at(boundary_area, faces.ravel(), np.repeat(areas / 3.0, 3))
 
     traction_force = np.zeros((n, 3))
-    for k, load in enumerate(scene.tractions):
+    for index, load in enumerate(scene.tractions):
         on_face = in_box(points, load.min, load.max)[faces].all(axis=1)
         if not on_face.any():
-            raise ConfigError(f"tractions[{k}]: the box min = {list(load.min)}, max = {list(load.max)} holds no "
+            raise ConfigError(f"tractions[{index}]: the box min = {list(load.min)}, max = {list(load.max)} holds no "
                               f"boundary face (all three corners inside) of the mesh, which spans "
                               f"{_extent_text(points)}; a traction box must hold at least one")
         np.add.at(traction_force, faces[on_face].ravel(),
@@ -179,10 +179,10 @@ def build_model(scene, mesh):
 
     held = np.zeros((n, 3), dtype=np.bool_)
     held_velocity = np.zeros((n, 3))
-    for k, box in enumerate(scene.fixed):
+    for index, box in enumerate(scene.fixed):
         inside = in_box(points, box.min, box.max)
         if not inside.any():
-            raise ConfigError(f"fixed[{k}]: the box min = {list(box.min)}, max = {list(box.max)} holds no vertex of "
+            raise ConfigError(f"fixed[{index}]: the box min = {list(box.min)}, max = {list(box.max)} holds no vertex of "
                               f"the mesh, which spans {_extent_text(points)}; a fixed box must hold at least one")
         for axis in box.axes:
             k = AXIS_INDEX[axis]

@@ -375,7 +375,8 @@ def _simulate(prepared, output_path, progress, should_stop, resume, compiled):
 LONG_RUN_S = 3600.0
 # Below any speed softsim falls to [tet-steps/s] (a few hundred tets on one thread step at about
 # 3e7): a run shorter than LONG_RUN_S even at this speed is not measured.  The measuring burst
-# costs SPEED_SAMPLE_S, under 1 % of a run it measures at the speeds softsim reaches (1e8-3e8).
+# costs SPEED_SAMPLE_S, about 1 % or less of a run it measures (7e9 tet-steps or more, at the
+# 3e7-3e8 tet-steps/s softsim reaches).
 SLOWEST_TET_STEPS_PER_S = 2e6
 # Wall time [s] of the burst of steps that measures this machine's speed for a long run.
 SPEED_SAMPLE_S = 0.3
