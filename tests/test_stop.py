@@ -73,6 +73,33 @@ def test_a_signal_ends_the_run_after_a_whole_frame(tmp_path, sig):
     assert stdout.startswith(f"{out}: {state['step']} of {planned} steps, "), stdout
 
 
+def test_a_file_another_run_is_writing_is_refused_even_with_overwrite(tmp_path, monkeypatch):
+    """Two runs into one file: the second would replace the file under the first, both would report
+    success and the first's frames would be lost.  HDF5 holds a lock on a file it writes."""
+    monkeypatch.chdir(tmp_path)
+    scene = write_scene(tmp_path, 1000.0)          # far longer than the test waits
+    out = tmp_path / "out.h5"
+    process = subprocess.Popen([sys.executable, "-m", "softsim.cli.main", "run", str(scene), "-o", str(out)],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 120             # room for a first JIT compilation
+        while frame_count(out) < 1:
+            assert process.poll() is None, process.communicate()
+            assert time.monotonic() < deadline, "no frames written in time"
+            time.sleep(0.05)
+        runner = CliRunner()
+        for flag, message in (("--overwrite", "output.path = 'out.h5': another run is writing this file now"),
+                              ("--resume", "--resume: another run is writing 'out.h5' now")):
+            # a short second run: one that went ahead would end soon and fail the test, not hang it
+            second = runner.invoke(cli, ["run", str(scene), "-o", "out.h5", flag, "--set", "time.duration=0.002"])
+            assert second.exit_code == 1, second.output
+            assert second.stderr.strip().splitlines()[-1].startswith(f"Error: {message}"), second.stderr
+        assert process.poll() is None                 # the first run goes on
+    finally:
+        process.kill()
+        process.communicate()
+
+
 def test_an_existing_output_is_not_overwritten_without_the_flag(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     scene = write_scene(tmp_path, 0.002)

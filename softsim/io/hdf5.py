@@ -36,6 +36,11 @@ import time as _time
 import zlib
 from pathlib import Path
 
+try:
+    import fcntl
+except ImportError:               # Windows: no flock, so no check for a concurrent writer
+    fcntl = None
+
 import h5py
 import numpy as np
 
@@ -83,6 +88,9 @@ def check_writable(path, overwrite=True, inputs=()):
         if Path(name).resolve() == Path(path).resolve():
             raise SimulationError(f"output.path = '{path}': is the scene's own file '{name}', which the run "
                                   f"reads; choose another output name")
+    if being_written(path):
+        raise SimulationError(f"output.path = '{path}': another run is writing this file now; wait for it to end "
+                              f"or choose another output name")
     if not overwrite:
         unfinished = _unfinished_status(path)
         if unfinished:
@@ -99,6 +107,27 @@ def check_writable(path, overwrite=True, inputs=()):
     except OSError as exc:
         raise SimulationError(f"output.path = '{path}': cannot create a file in folder {folder} "
                               f"({exc.strerror or exc})") from None
+
+
+def being_written(path):
+    """Whether a process has ``path`` open for writing through HDF5, which holds an exclusive
+    ``flock`` on a file it writes (a running softsim run: its ``RunWriter``).  False where there is
+    no ``flock`` (Windows) or no such file."""
+    if fcntl is None or not Path(path).is_file():
+        return False
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        return False
+    except BlockingIOError:
+        return True
+    except OSError:               # a file system without locks
+        return False
+    finally:
+        os.close(fd)              # closing drops the shared lock, if taken
 
 
 def _unfinished_status(path):
