@@ -39,18 +39,26 @@ def frame_count(path):
         return 0
 
 
-@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
-def test_a_signal_ends_the_run_after_a_whole_frame(tmp_path, sig):
-    scene = write_scene(tmp_path, 1000.0)          # far longer than the test waits
-    out = tmp_path / "out.h5"
+def start_long_run(folder, frames):
+    """``(process, scene, out)``: ``softsim run`` of a scene far longer than a test waits, in a
+    process of its own writing ``folder/out.h5``, once it has written ``frames`` frames."""
+    scene = write_scene(folder, 1000.0)
+    out = Path(folder) / "out.h5"
     process = subprocess.Popen([sys.executable, "-m", "softsim.cli.main", "run", str(scene), "-o", str(out)],
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120             # room for a first JIT compilation
+    while frame_count(out) < frames:
+        if process.poll() is not None or time.monotonic() > deadline:
+            process.kill()
+            pytest.fail(f"no {frames} frames written in time: {process.communicate()}")
+        time.sleep(0.05)
+    return process, scene, out
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_a_signal_ends_the_run_after_a_whole_frame(tmp_path, sig):
+    process, scene, out = start_long_run(tmp_path, 3)
     try:
-        deadline = time.monotonic() + 120             # room for a first JIT compilation
-        while frame_count(out) < 3:
-            assert process.poll() is None, process.communicate()
-            assert time.monotonic() < deadline, "no frames written in time"
-            time.sleep(0.05)
         os.kill(process.pid, sig)
         stdout, stderr = process.communicate(timeout=60)
     finally:
@@ -77,16 +85,8 @@ def test_a_file_another_run_is_writing_is_refused_even_with_overwrite(tmp_path, 
     """Two runs into one file: the second would replace the file under the first, both would report
     success and the first's frames would be lost.  HDF5 holds a lock on a file it writes."""
     monkeypatch.chdir(tmp_path)
-    scene = write_scene(tmp_path, 1000.0)          # far longer than the test waits
-    out = tmp_path / "out.h5"
-    process = subprocess.Popen([sys.executable, "-m", "softsim.cli.main", "run", str(scene), "-o", str(out)],
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    process, scene, _ = start_long_run(tmp_path, 1)
     try:
-        deadline = time.monotonic() + 120             # room for a first JIT compilation
-        while frame_count(out) < 1:
-            assert process.poll() is None, process.communicate()
-            assert time.monotonic() < deadline, "no frames written in time"
-            time.sleep(0.05)
         runner = CliRunner()
         for flag, message in (("--overwrite", "output.path = 'out.h5': another run is writing this file now"),
                               ("--resume", "--resume: another run is writing 'out.h5' now")):
