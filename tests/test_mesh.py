@@ -7,6 +7,7 @@ import dataclasses
 import logging
 import math
 import re
+from pathlib import Path
 
 import h5py
 import meshio
@@ -478,3 +479,26 @@ def test_compiled_volumes_and_edge_lengths_match_numpy():
     assert (volume > 0).any() and (volume < 0).any()
     np.testing.assert_allclose(signed_volumes(x, tets), volume, rtol=1e-12, atol=0)
     np.testing.assert_allclose(mean_edge_lengths(x, tets), edges / 6.0, rtol=1e-14, atol=0)
+
+
+def test_input_clash_finds_an_xdmf_files_data_file(tmp_path):
+    """``with_data_file`` / ``input_clash``: an XDMF file (any case of .xdmf, .xmf) comes with the
+    ``.h5`` beside it; other formats alone; the same file by another path is the same file."""
+    from softsim.io.files import input_clash, with_data_file
+
+    assert with_data_file(tmp_path / "a.XMF") == [tmp_path / "a.XMF", tmp_path / "a.h5"]
+    assert with_data_file("a.vtu") == [Path("a.vtu")]
+    scene, mesh_file = tmp_path / "s.yaml", tmp_path / "m.xdmf"
+    assert input_clash([tmp_path / "out.h5", tmp_path / "out.xdmf"], [scene, mesh_file, None]) is None
+    assert input_clash([tmp_path / "sub" / ".." / "m.h5"], [scene, mesh_file]) == (
+        tmp_path / "sub" / ".." / "m.h5", tmp_path / "m.h5", mesh_file)
+    assert input_clash(["x.vtu", tmp_path / "s.yaml"], [scene, ""]) == (tmp_path / "s.yaml", scene, scene)
+
+
+def test_check_mesh_output_names_the_data_file_that_would_replace_an_input(tmp_path):
+    from softsim.mesh.write import check_mesh_output
+
+    with pytest.raises(MeshError, match=r"^--output = '.*m\.xdmf': its data file '.*m\.h5' is the "
+                                        r"scene's own file '.*m\.h5', which meshing reads; choose another"):
+        check_mesh_output(tmp_path / "m.xdmf", overwrite=True, inputs=[tmp_path / "m.h5"])
+    check_mesh_output(tmp_path / "m.xdmf", overwrite=False, inputs=[tmp_path / "other.h5"])   # nothing there: fine

@@ -39,13 +39,15 @@ def frame_count(path):
         return 0
 
 
-def start_long_run(folder, frames):
+def start_long_run(folder, frames, env=None):
     """``(process, scene, out)``: ``softsim run`` of a scene far longer than a test waits, in a
-    process of its own writing ``folder/out.h5``, once it has written ``frames`` frames."""
+    process of its own writing ``folder/out.h5``, once it has written ``frames`` frames.
+    env: variables to set in that process's environment."""
     scene = write_scene(folder, 1000.0)
     out = Path(folder) / "out.h5"
     process = subprocess.Popen([sys.executable, "-m", "softsim.cli.main", "run", str(scene), "-o", str(out)],
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                               env={**os.environ, **(env or {})})
     deadline = time.monotonic() + 120             # room for a first JIT compilation
     while frame_count(out) < frames:
         if process.poll() is not None or time.monotonic() > deadline:
@@ -81,17 +83,23 @@ def test_a_signal_ends_the_run_after_a_whole_frame(tmp_path, sig):
     assert stdout.startswith(f"{out}: {state['step']} of {planned} steps, "), stdout
 
 
-def test_a_file_another_run_is_writing_is_refused_even_with_overwrite(tmp_path, monkeypatch):
+@pytest.mark.parametrize("hdf5_locking", ["TRUE", "FALSE"])
+def test_a_file_another_run_is_writing_is_refused_even_with_overwrite(tmp_path, monkeypatch, hdf5_locking):
     """Two runs into one file: the second would replace the file under the first, both would report
-    success and the first's frames would be lost.  HDF5 holds a lock on a file it writes."""
+    success and the first's frames would be lost.  HDF5 holds a lock on a file it writes, and where
+    its locking is off (``HDF5_USE_FILE_LOCKING=FALSE``, common on clusters) the run holds one.
+    ``softsim mesh -o out.xdmf`` would write the run's file too (meshio puts an XDMF file's data in
+    ``out.h5``)."""
     monkeypatch.chdir(tmp_path)
-    process, scene, _ = start_long_run(tmp_path, 1)
+    process, scene, _ = start_long_run(tmp_path, 1, env={"HDF5_USE_FILE_LOCKING": hdf5_locking})
     try:
         runner = CliRunner()
-        for flag, message in (("--overwrite", "output.path = 'out.h5': another run is writing this file now"),
-                              ("--resume", "--resume: another run is writing 'out.h5' now")):
+        for command, message in (
+                (["run", "-o", "out.h5", "--overwrite"], "output.path = 'out.h5': another run is writing this file now"),
+                (["run", "-o", "out.h5", "--resume"], "--resume: another run is writing 'out.h5' now"),
+                (["mesh", "-o", "out.xdmf", "--overwrite"], "--output = 'out.xdmf': another run is writing 'out.h5' now")):
             # a short second run: one that went ahead would end soon and fail the test, not hang it
-            second = runner.invoke(cli, ["run", str(scene), "-o", "out.h5", flag, "--set", "time.duration=0.002"])
+            second = runner.invoke(cli, [command[0], str(scene), *command[1:], "--set", "time.duration=0.002"])
             assert second.exit_code == 1, second.output
             assert second.stderr.strip().splitlines()[-1].startswith(f"Error: {message}"), second.stderr
         assert process.poll() is None                 # the first run goes on
@@ -148,18 +156,24 @@ def test_an_existing_xdmf_is_not_overwritten_without_the_flag(tmp_path, monkeypa
 
 
 @pytest.mark.parametrize("command", ["run", "mesh"])
-def test_the_scene_and_its_mesh_file_are_never_written_over(tmp_path, monkeypatch, command):
+@pytest.mark.parametrize("mesh_files", [("bar.vtu",), ("bar.xdmf", "bar.h5")])
+def test_the_scene_and_its_mesh_file_are_never_written_over(tmp_path, monkeypatch, command, mesh_files):
+    """Nor an XDMF mesh's data file (meshio reads ``bar.xdmf``'s arrays from ``bar.h5``), nor the
+    mesh through the XDMF file a run writes beside its output (``-o bar.hdf5`` writes ``bar.xdmf``)."""
     monkeypatch.chdir(tmp_path)
     runner = CliRunner()
-    assert runner.invoke(cli, ["mesh", str(write_scene(tmp_path, 0.002)), "-o", "bar.vtu"]).exit_code == 0
+    assert runner.invoke(cli, ["mesh", str(write_scene(tmp_path, 0.002)), "-o", mesh_files[0]]).exit_code == 0
+    assert sorted(p.name for p in tmp_path.glob("bar.*")) == sorted(mesh_files)
     scene = tmp_path / "file.yaml"
     scene.write_text(SCENE.replace("DURATION", "0.002").replace(
-        "{shape: box, size: [0.3, 0.1, 0.1], element_size: 0.05, structured: true}", "{shape: file, file: bar.vtu}"))
-    before = {name: (tmp_path / name).read_bytes() for name in ("file.yaml", "bar.vtu")}
-    for name in before:
+        "{shape: box, size: [0.3, 0.1, 0.1], element_size: 0.05, structured: true}",
+        f"{{shape: file, file: {mesh_files[0]}}}"))
+    before = {name: (tmp_path / name).read_bytes() for name in ("file.yaml", *mesh_files)}
+    outputs = [*before, "bar.hdf5"] if command == "run" and len(mesh_files) == 2 else list(before)
+    for name in outputs:
         result = runner.invoke(cli, [command, str(scene), "-o", name, "--overwrite"])
         assert result.exit_code == 1
-        assert "is the scene's own file" in result.stderr and "choose another" in result.stderr, result.stderr
+        assert "the scene's own file" in result.stderr and "choose another" in result.stderr, result.stderr
     assert {name: (tmp_path / name).read_bytes() for name in before} == before
 
 
@@ -174,6 +188,23 @@ def test_mesh_does_not_overwrite_without_the_flag(tmp_path, monkeypatch):
         "Error: --output = 'bar.vtu': the file exists; pass --overwrite to replace it"]
     assert (tmp_path / "bar.vtu").read_text() == "mine\n"
     assert runner.invoke(cli, ["mesh", str(scene), "-o", "bar.vtu", "--overwrite"]).exit_code == 0
+
+
+def test_mesh_to_xdmf_does_not_overwrite_the_h5_beside_it_without_the_flag(tmp_path, monkeypatch):
+    """meshio writes ``bar.xdmf``'s arrays into ``bar.h5``: a finished run's file of that name was
+    lost to ``softsim mesh -o bar.xdmf``."""
+    monkeypatch.chdir(tmp_path)
+    scene = write_scene(tmp_path, 0.002)
+    runner = CliRunner()
+    (tmp_path / "bar.h5").write_text("a run's frames\n")
+    result = runner.invoke(cli, ["mesh", str(scene), "-o", "bar.xdmf"])
+    assert result.exit_code == 1
+    assert result.stderr.strip().splitlines() == [
+        "Error: --output = 'bar.xdmf': meshio writes an XDMF file's data to 'bar.h5', which exists; pass "
+        "--overwrite to replace it"]
+    assert (tmp_path / "bar.h5").read_text() == "a run's frames\n" and not (tmp_path / "bar.xdmf").exists()
+    assert runner.invoke(cli, ["mesh", str(scene), "-o", "bar.xdmf", "--overwrite"]).exit_code == 0
+    assert h5py.is_hdf5(tmp_path / "bar.h5")
 
 
 def _stop_after(frames):

@@ -47,6 +47,7 @@ import numpy as np
 from .. import __version__
 from ..errors import SimulationError, SoftsimError
 from .fields import FIELDS
+from .files import describe_input, input_clash
 from .xdmf import write_xdmf
 
 ENERGY_TERMS = ("kinetic", "elastic", "gravity")
@@ -71,9 +72,9 @@ def xdmf_path_for(path):
 
 def check_writable(path, overwrite=True, inputs=()):
     """Raise ``SimulationError`` unless a run can write ``path`` and its XDMF file (checked before any
-    work): the folder must exist and take a new file, ``path`` must not be one of ``inputs`` (the
-    scene's own files, never written over), and unless ``overwrite`` neither ``path`` nor the XDMF
-    file beside it may exist."""
+    work): the folder must exist and take a new file, neither ``path`` nor its XDMF file may be one
+    of ``inputs`` (the scene's own files, never written over; an XDMF mesh file's ``.h5`` data
+    file too), and unless ``overwrite`` neither may exist."""
     folder = Path(path).resolve().parent
     if not folder.is_dir():
         raise SimulationError(f"output.path = '{path}': folder {folder} does not exist")
@@ -81,13 +82,15 @@ def check_writable(path, overwrite=True, inputs=()):
         raise SimulationError(f"output.path = '{path}': folder {folder} is not writable")
     if Path(path).is_dir():
         raise SimulationError(f"output.path = '{path}': is a directory, expected a file name like out.h5")
+    clash = input_clash((path, xdmf_path_for(path)), inputs)
+    if clash is not None:
+        written, input_file, name = clash
+        which = "is" if written == path else f"its XDMF file '{written}' would replace"
+        raise SimulationError(f"output.path = '{path}': {which} the scene's own file "
+                              f"{describe_input(input_file, name)}, which the run reads; choose another output name")
     if xdmf_path_for(path).resolve() == Path(path).resolve():
         raise SimulationError(f"output.path = '{path}': is the name of the XDMF file written beside the "
                               f"HDF5 file; use an HDF5 name like out.h5")
-    for name in inputs:
-        if Path(name).resolve() == Path(path).resolve():
-            raise SimulationError(f"output.path = '{path}': is the scene's own file '{name}', which the run "
-                                  f"reads; choose another output name")
     if being_written(path):
         raise SimulationError(f"output.path = '{path}': another run is writing this file now; wait for it to end "
                               f"or choose another output name")
@@ -111,8 +114,9 @@ def check_writable(path, overwrite=True, inputs=()):
 
 def being_written(path):
     """Whether a process has ``path`` open for writing through HDF5, which holds an exclusive
-    ``flock`` on a file it writes (a running softsim run: its ``RunWriter``).  False where there is
-    no ``flock`` (Windows) or no such file."""
+    ``flock`` on a file it writes, or a ``RunWriter`` holds one (a running softsim run, HDF5's
+    locking on or off).  False where there is no ``flock`` (Windows, a file system without locks)
+    or no such file."""
     if fcntl is None or not Path(path).is_file():
         return False
     try:
@@ -128,6 +132,26 @@ def being_written(path):
         return False
     finally:
         os.close(fd)              # closing drops the shared lock, if taken
+
+
+def _lock_unless_locked(path):
+    """An open descriptor of ``path`` holding an exclusive ``flock`` on it, so that ``being_written``
+    sees the run, where HDF5 holds none (``HDF5_USE_FILE_LOCKING=FALSE``, common on cluster file
+    systems); None where HDF5 holds it already, or there are no locks.  Release with ``_unlock``."""
+    if fcntl is None:
+        return None
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:                 # BlockingIOError: HDF5's own lock; else a file system without locks
+        os.close(fd)
+        return None
+    return fd
+
+
+def _unlock(fd):
+    if fd is not None:
+        os.close(fd)                # closing drops the lock
 
 
 def _unfinished_status(path):
@@ -172,6 +196,7 @@ class RunWriter:
             self.file = h5py.File(partial, "w")
         except OSError as exc:
             raise SimulationError(f"output.path = '{path}': cannot create the file ({exc})") from None
+        self._lock = _lock_unless_locked(partial)
         try:
             self._create_layout(points, tets, fixed, config_yaml, dt, steps, max(1, int(frames)),
                                 resume_template or {})
@@ -181,6 +206,7 @@ class RunWriter:
             self._open_datasets()
         except BaseException as exc:
             self.file.close()
+            _unlock(self._lock)
             partial.unlink(missing_ok=True)
             if isinstance(exc, OSError):
                 raise SimulationError(f"output.path = '{path}': cannot write the file ({_os_reason(exc)})") from None
@@ -241,12 +267,14 @@ class RunWriter:
             self.file = h5py.File(self.path, "a")
         except OSError as exc:
             raise SimulationError(f"output.path = '{path}': cannot reopen the file to resume ({exc})") from None
+        self._lock = _lock_unless_locked(self.path)
         f = self.file
         self.node_count = f["mesh/points"].shape[0]
         self.tet_count = f["mesh/tets"].shape[0]
         newest = _newest_slot(f, check_data=True)
         if newest is None:
             self.file.close()
+            _unlock(self._lock)
             raise SimulationError(f"--resume: '{path}' holds no intact resume state")
         self._last_slot, state = newest
         self.frame_count = int(state["frames"])
@@ -387,6 +415,7 @@ class RunWriter:
                 self.file.close()
             except OSError:
                 trimmed = False
+            _unlock(self._lock)
         if trimmed:
             _compact(self.path)
 

@@ -1,0 +1,37 @@
+"""The files a command writes or reads besides the ones it names, so that none is replaced by
+surprise: meshio keeps an XDMF file's arrays in an HDF5 file of the same stem beside it, so
+writing ``beam.xdmf`` also writes ``beam.h5`` (and reading it reads ``beam.h5``)."""
+
+from pathlib import Path
+
+XDMF_SUFFIXES = (".xdmf", ".xmf")
+
+
+def with_data_file(path):
+    """``[path]``, and for an XDMF file (``.xdmf``, ``.xmf``) also the ``.h5`` file beside it that
+    holds its arrays when meshio writes it."""
+    path = Path(path)
+    return [path, path.with_suffix(".h5")] if path.suffix.lower() in XDMF_SUFFIXES else [path]
+
+
+def input_clash(outputs, inputs):
+    """The first ``(output, input_file, input)`` where writing ``output`` would replace
+    ``input_file``, the file ``input`` names or its XDMF data file; None if none would.
+    outputs, inputs: paths; empty inputs (None, "") are skipped."""
+    read = {}
+    for name in inputs:
+        if name:
+            for file in with_data_file(name):
+                read.setdefault(file.resolve(), (file, name))
+    for output in outputs:
+        hit = read.get(Path(output).resolve())
+        if hit is not None:
+            return (output, *hit)
+    return None
+
+
+def describe_input(input_file, name):
+    """``'beam.vtu'``, or ``'beam.h5' (the data of 'beam.xdmf')`` for an XDMF file's data file."""
+    if Path(input_file).resolve() == Path(name).resolve():
+        return f"'{name}'"
+    return f"'{input_file}' (the data of '{name}')"

@@ -1,0 +1,42 @@
+"""Writing a tetrahedral mesh to any file format meshio writes, never over a file by surprise."""
+
+from pathlib import Path
+
+from ..errors import MeshError
+from ..io.files import describe_input, input_clash, with_data_file
+from ..io.hdf5 import being_written
+
+
+def check_mesh_output(output, overwrite=False, inputs=()):
+    """Raise ``MeshError`` unless ``write_mesh`` may write ``output`` (checked before meshing):
+    its folder exists; neither it nor, for XDMF, the ``.h5`` data file meshio writes beside it is
+    one of ``inputs`` (the scene's own files) or a file a run is writing now; and unless
+    ``overwrite`` neither exists."""
+    folder = Path(output).resolve().parent
+    if not folder.is_dir():
+        raise MeshError(f"--output = '{output}': folder {folder} does not exist")
+    clash = input_clash(with_data_file(output), inputs)
+    if clash is not None:
+        written, input_file, name = clash
+        which = "is" if Path(written) == Path(output) else f"its data file '{written}' is"
+        raise MeshError(f"--output = '{output}': {which} the scene's own file {describe_input(input_file, name)}, "
+                        f"which meshing reads; choose another output name")
+    for file in with_data_file(output):
+        if being_written(file):
+            raise MeshError(f"--output = '{output}': another run is writing '{file}' now; choose another output name")
+    if not overwrite:
+        for file in with_data_file(output):
+            if file.exists():
+                what = "the file exists" if file == Path(output) else (
+                    f"meshio writes an XDMF file's data to '{file}', which exists")
+                raise MeshError(f"--output = '{output}': {what}; pass --overwrite to replace it")
+
+
+def write_mesh(tet_mesh, output):
+    """Write ``tet_mesh`` (a ``TetMesh``) to ``output``, its format by the extension (meshio)."""
+    import meshio
+
+    try:
+        meshio.write(output, meshio.Mesh(tet_mesh.points, [("tetra", tet_mesh.tets)]))
+    except Exception as exc:  # meshio raises several types for unknown formats and bad paths
+        raise MeshError(f"--output = '{output}': cannot write the mesh ({exc})") from None
