@@ -85,7 +85,7 @@ def run(scene, output, overwrite, resume, yes, overrides):
     else:
         inputs = (scene,) + ((scene_config.mesh.file,) if scene_config.mesh.file else ())
         check_writable(scene_config.output.path, overwrite, inputs)   # before meshing: a bad path costs no work
-    prepared = prepare(scene_config)
+    prepared = prepare(scene_config, resuming=resume)
     log.info("mesh: %s", format_quality(prepared.mesh.quality()))
     plan = prepared.plan
     given = "" if prepared.substeps == 1 else f" (time.dt split into {prepared.substeps} sub-steps, dt_policy: substep)"
@@ -97,7 +97,8 @@ def run(scene, output, overwrite, resume, yes, overrides):
     update = None if bar is None else (lambda done, total: bar.update(done - bar.n))
     try:
         with stop_on_signals() as should_stop:
-            summary = simulate(prepared, scene_config.output.path, update, should_stop, resume=resume)
+            summary = simulate(prepared, scene_config.output.path, update, should_stop, resume=resume,
+                               overwrite=overwrite)
     finally:
         if bar is not None:
             bar.close()

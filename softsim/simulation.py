@@ -134,12 +134,13 @@ def choose_dt(scene, model, dt_estimate):
     return dt / substeps, safe, substeps
 
 
-def prepare(scene, mesh=None):
+def prepare(scene, mesh=None, resuming=False):
     """Mesh the scene (unless ``mesh``, a ``TetMesh`` already built from ``scene.mesh``, is given),
-    build its model and time plan; raises ``SoftsimError`` on bad input."""
+    build its model and time plan; raises ``SoftsimError`` on bad input.  resuming: the run goes on
+    from a stored frame, so what the initial state would do (start in the ground) is not warned of."""
     mesh = build_mesh(scene.mesh) if mesh is None else mesh
     model = build_model(scene, mesh)
-    if model.has_ground:
+    if model.has_ground and not resuming:
         warn_of_start_in_ground(scene, model)
     material = scene.material
     wave_speed = dilatational_wave_speed(material.youngs_modulus, material.poissons_ratio, material.density)
@@ -285,7 +286,7 @@ def advance_substeps(model, state, dt, step_count, substeps, damping, work):
     return step_count * substeps
 
 
-def simulate(prepared, output_path, progress=None, should_stop=None, resume=False):
+def simulate(prepared, output_path, progress=None, should_stop=None, resume=False, overwrite=True):
     """Run a prepared scene, writing frames to ``output_path``; returns a ``RunSummary``.
 
     progress: optional callable ``progress(steps_done, total_steps)`` called after every frame.
@@ -294,13 +295,15 @@ def simulate(prepared, output_path, progress=None, should_stop=None, resume=Fals
     resume: continue the run already in ``output_path`` from its last complete frame (see
     ``check_resumable``); on the same machine and thread count the trajectory is the same, bit
     for bit, as a run that never stopped.
+    overwrite: whether an existing ``output_path`` may be replaced; checked again just before the
+    file is made, since meshing and compiling may give another run time to write it.
     On an exception or KeyboardInterrupt the file keeps its frames and gets status ``failed`` /
     ``interrupted``.
     """
     started = _time.perf_counter()
     with compile_timer() as compiled:
         status, frames, steps_taken, step_reached = _simulate(prepared, output_path, progress, should_stop, resume,
-                                                              compiled)
+                                                              overwrite, compiled)
     wall = _time.perf_counter() - started
     compiling = compiled()
     plan = prepared.plan
@@ -310,7 +313,7 @@ def simulate(prepared, output_path, progress=None, should_stop=None, resume=Fals
                       compile_time_s=compiling, step=step_reached)
 
 
-def _simulate(prepared, output_path, progress, should_stop, resume, compiled):
+def _simulate(prepared, output_path, progress, should_stop, resume, overwrite, compiled):
     """``simulate``'s run: returns its status, the frames in the file, the steps taken (sub-steps
     counted) and the step of the plan reached.  compiled: the compile time so far [s], a
     function (``kernels.jit.compile_timer``), which the file records with its wall time."""
@@ -335,7 +338,7 @@ def _simulate(prepared, output_path, progress, should_stop, resume, compiled):
         guard.restore(stored)
         substeps = guard.substeps if scene.time.dt_policy != "allow" else 1
     else:
-        check_writable(output_path)
+        check_writable(output_path, overwrite)
         writer = RunWriter(output_path, model.mesh.points, model.mesh.tets, model.to_user_order(model.fixed),
                            scene_to_yaml(scene), plan.dt, plan.total_steps, fields, frames=len(plan.frame_steps),
                            resume_template=guard.snapshot())
@@ -374,9 +377,9 @@ def _simulate(prepared, output_path, progress, should_stop, resume, compiled):
 # A run estimated to take longer than this [s of wall time] starts only when confirmed (--yes).
 LONG_RUN_S = 3600.0
 # Below any speed softsim falls to [tet-steps/s] (a few hundred tets on one thread step at about
-# 3e7): a run shorter than LONG_RUN_S even at this speed is not measured.  The measuring burst
-# costs SPEED_SAMPLE_S, about 1 % or less of a run it measures (7e9 tet-steps or more, at the
-# 3e7-3e8 tet-steps/s softsim reaches).
+# 3e7): a run shorter than LONG_RUN_S even at this speed is not measured.  The measuring bursts
+# double until one lasts SPEED_SAMPLE_S, so they take 1 to 4 times it: at most 5 % of a run they
+# measure (7.2e9 tet-steps or more: 24 s at the fastest 3e8 tet-steps/s, 4 min at 3e7).
 SLOWEST_TET_STEPS_PER_S = 2e6
 # Wall time [s] of the burst of steps that measures this machine's speed for a long run.
 SPEED_SAMPLE_S = 0.3

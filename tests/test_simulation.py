@@ -14,7 +14,7 @@ import numba
 import numpy as np
 import pytest
 
-from softsim.errors import ConfigError
+from softsim.errors import ConfigError, SimulationError
 from softsim.integrators.stability import exact_stable_step
 from softsim.integrators.symplectic_euler import work_buffer
 from softsim.integrators.timestep import AUTO_SAFETY
@@ -411,6 +411,10 @@ def test_a_cube_started_in_the_ground_is_pushed_out_with_the_energy_of_its_sprin
     with caplog.at_level("WARNING", logger="softsim"):
         prepared = prepare(s)
     assert "ground.height = 0.002 m: 9 vertices start below it" in caplog.text
+    caplog.clear()
+    with caplog.at_level("WARNING", logger="softsim"):
+        prepare(s, resuming=True)          # a resumed run goes on from a stored frame, not from the start
+    assert "start below it" not in caplog.text
     stored = ground_spring_energy(prepared.model, initial_state(s, prepared.model).x)
     assert stored == pytest.approx(0.5 * stiffness * A_CUBE ** 2 * depth ** 2, rel=1e-12)
     summary = simulate(prepared, tmp_path / "out.h5")
@@ -420,6 +424,18 @@ def test_a_cube_started_in_the_ground_is_pushed_out_with_the_energy_of_its_sprin
         lowest = f["frames/points"][-1][:, 2].min()
     assert (kinetic + elastic).max() <= stored * 1.05
     assert kinetic[-1] > 0.5 * stored and lowest > depth           # thrown clear of the ground
+
+
+def test_simulate_checks_the_output_again_just_before_making_it(scene, tmp_path):
+    """``softsim run`` checks its output before meshing and compiling, which may take long enough for
+    another run to write the file: ``simulate`` checks again, by the same ``--overwrite``."""
+    prepared = prepare(scene(time={"duration": 0.002}))
+    out = tmp_path / "out.h5"
+    out.write_text("written meanwhile by another run\n")
+    with pytest.raises(SimulationError, match="the file exists; pass --overwrite to replace it"):
+        simulate(prepared, out, overwrite=False)
+    assert out.read_text() == "written meanwhile by another run\n"
+    assert simulate(prepared, out).status == "complete"          # the library's default replaces it
 
 
 @pytest.mark.parametrize("friction", [0.5, 0.0])
