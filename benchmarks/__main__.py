@@ -76,7 +76,8 @@ def main(argv=None):
             continue
         suite.log(f"[{name}]")
         rows.extend(run())
-    judged = targets.targets(rows, avx512="+avx512f" in binding.get_host_cpu_features().flatten())
+    rows.append(targets.host_row("avx512" if "+avx512f" in binding.get_host_cpu_features().flatten() else "avx2"))
+    judged = targets.targets(rows)
     suite.log(targets.summary(judged))
     rows = judged + rows
     machine = (f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, numba {numba.__version__} "

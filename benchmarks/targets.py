@@ -1,6 +1,6 @@
 """The performance issue's targets, checked against the rows of one run of the suite.
 
-    python -m benchmarks.targets benchmarks/results/results.csv [--avx2]
+    python -m benchmarks.targets benchmarks/results/results.csv [--host avx512|avx2]
 
 ``python -m benchmarks`` puts these rows first in its ``results.md`` (section ``targets``); this
 command derives them again from any run's ``results.csv``.  Each row is one target at one size:
@@ -20,8 +20,8 @@ The targets (float64 StVK on the structured beam, 2 threads, unless a row says o
   once-per-frame guard included: the guard's share of the wall time;
 - the peers computing the same positions (to round-off: 1e-10 of the displacement after the
   check's 1,000 steps) at speeds no more than 25 % under the issue's table for this host kind
-  (AVX-512 or AVX2): a peer slowed by a poor port proves nothing, a faster one takes nothing
-  from softsim's ratio to it.
+  (AVX-512 or AVX2, as the run's ``host`` row records it): a peer slowed by a poor port proves
+  nothing, a faster one takes nothing from softsim's ratio to it.
 """
 
 import argparse
@@ -51,6 +51,19 @@ STEP_BYTES_PER_TET = 150.0       # at 1M tets
 WARM_START_SECONDS = 2.0
 OUTSIDE_SHARE = 0.10             # of the wall time, frames every 10 ms
 GUARD_SHARE = 0.05
+
+
+def host_row(kind):
+    """The row that records which host kind's peer table (``PEER_TABLE``) judges a run."""
+    if kind not in PEER_TABLE:
+        raise ValueError(f"host kind {kind!r}: must be one of {', '.join(PEER_TABLE)}")
+    return dict(section="host", case="peer table", tets=None, runner="softsim", threads=None, rate=None,
+                ratio=None, ratio_to=None, note=kind)
+
+
+def host_kind(rows):
+    """The host kind a run's ``host`` row records; ``avx512`` for a run without one."""
+    return next((r["note"] for r in _pick(rows, "host", "peer table")), "avx512")
 
 
 def nominal_size(tets):
@@ -87,7 +100,7 @@ def _pick(rows, section, case=None, runner=None):
             and (runner is None or r["runner"] == runner)]
 
 
-def _throughput_targets(rows, avx512):
+def _throughput_targets(rows, host):
     by_size = {}
     for r in _pick(rows, "throughput"):
         size = nominal_size(r["tets"])
@@ -103,7 +116,7 @@ def _throughput_targets(rows, avx512):
                 out.append(_row(f"softsim / {peer}", tets, None, f">= {need:g}", False, "the peer did not run"))
                 continue
             out.append(_at_least(f"softsim / {peer}", tets, _number(found[peer]["ratio"]), need))
-            rate, table = _number(found[peer]["rate"]), PEER_TABLE["avx512" if avx512 else "avx2"][peer][size]
+            rate, table = _number(found[peer]["rate"]), PEER_TABLE[host][peer][size]
             out.append(_row(f"{peer} speed against the issue's table", tets, rate / table,
                             f">= {PEER_SPEED_FLOOR:g} of {table}", rate / table >= PEER_SPEED_FLOOR,
                             f"{rate:.1f} M tet-steps/s"))
@@ -162,11 +175,13 @@ def _run_targets(rows):
     return out
 
 
-def targets(rows, avx512=True):
+def targets(rows, host=None):
     """The ``targets`` rows (the suite's row format) judged from ``rows`` of one run (``suite``'s,
-    or read back from ``results.csv``); ``avx512``: which row of the issue's peer table applies.
-    A target whose section did not run gives no row."""
-    return (_same_answer_targets(rows) + _throughput_targets(rows, avx512) + _flat_cost_targets(rows)
+    or read back from ``results.csv``); ``host``: which host kind's row of the issue's peer table
+    applies (``PEER_TABLE``), by default the one the run recorded (``host_kind``).  A target whose
+    section did not run gives no row."""
+    host = host or host_kind(rows)
+    return (_same_answer_targets(rows) + _throughput_targets(rows, host) + _flat_cost_targets(rows)
             + _thread_targets(rows) + _model_targets(rows) + _run_targets(rows))
 
 
@@ -202,9 +217,10 @@ def markdown(target_rows):
 def main(argv=None):
     parser = argparse.ArgumentParser(prog="python -m benchmarks.targets", description=__doc__.split("\n\n")[0])
     parser.add_argument("csv", help="a results.csv written by python -m benchmarks")
-    parser.add_argument("--avx2", action="store_true", help="judge the peers by the issue's AVX2 host row")
+    parser.add_argument("--host", choices=list(PEER_TABLE),
+                        help="judge the peers by this host kind's row of the issue's table (default: the run's)")
     args = parser.parse_args(argv)
-    judged = targets(read_rows(args.csv), avx512=not args.avx2)
+    judged = targets(read_rows(args.csv), args.host)
     sys.stdout.write(markdown(judged) + "\n" + summary(judged) + "\n")
     return 0
 

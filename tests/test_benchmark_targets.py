@@ -41,8 +41,8 @@ def run_rows(**change):
     return rows
 
 
-def verdicts(rows, avx512=True):
-    return {(r["case"], r["tets"]): r["note"].split(":")[0] for r in targets.targets(rows, avx512)}
+def verdicts(rows, host=None):
+    return {(r["case"], r["tets"]): r["note"].split(":")[0] for r in targets.targets(rows, host)}
 
 
 def test_a_run_meeting_every_target_is_judged_met_everywhere():
@@ -96,8 +96,12 @@ def test_the_cost_is_judged_against_the_cheapest_size():
 def test_the_peer_table_is_that_of_the_host_kind():
     rows = run_rows(rows={("throughput", "warp", 1_006_215): {"rate": 29.9}})
     key = ("warp speed against the issue's table", 1_006_215)
-    assert verdicts(rows, avx512=True)[key] == "short"           # 29.9 of 51
-    assert verdicts(rows, avx512=False)[key] == "met"            # 29.9 of 30
+    assert verdicts(rows, "avx512")[key] == "short"              # 29.9 of 51
+    assert verdicts(rows, "avx2")[key] == "met"                  # 29.9 of 30
+    assert verdicts(rows)[key] == "short"                        # a run that recorded no host kind
+    assert verdicts(rows + [targets.host_row("avx2")])[key] == "met"   # the kind the run recorded
+    with pytest.raises(ValueError, match="host kind 'sse'"):
+        targets.host_row("sse")
 
 
 def test_a_peer_that_did_not_run_is_not_measured():
@@ -113,7 +117,8 @@ def test_nominal_sizes():
 
 
 def test_the_results_files_carry_the_targets_and_read_back(tmp_path, capsys, monkeypatch):
-    rows = run_rows(rows={("precision", "stvk float32", 98_260): {"ratio": 1.54}})
+    rows = run_rows(rows={("precision", "stvk float32", 98_260): {"ratio": 1.54},
+                          ("throughput", "warp", 1_006_215): {"rate": 29.9}}) + [targets.host_row("avx2")]
     judged = targets.targets(rows)
     monkeypatch.setattr(report, "plot", lambda *args: None)     # no figure needed here
     report.write(judged + rows, str(tmp_path), "test machine", quick=False)
@@ -121,5 +126,7 @@ def test_the_results_files_carry_the_targets_and_read_back(tmp_path, capsys, mon
     assert text.index("## targets") < text.index("## check")
     assert "| stvk float32 speed against float64 | 98,260 | 1.54 | >= 1.6 | short |" in text
     assert targets.targets(targets.read_rows(str(tmp_path / "results.csv"))) == judged
-    assert targets.main([str(tmp_path / "results.csv")]) == 0
+    assert targets.main([str(tmp_path / "results.csv")]) == 0     # judged by the host kind the run recorded
     assert "targets: 36 met, 1 short (stvk float32 speed against float64 at 98,260 tets)" in capsys.readouterr().out
+    assert targets.main([str(tmp_path / "results.csv"), "--host", "avx512"]) == 0
+    assert "targets: 35 met, 2 short" in capsys.readouterr().out
