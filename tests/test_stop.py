@@ -9,6 +9,7 @@ import time
 from pathlib import Path
 
 import h5py
+import meshio
 import pytest
 from click.testing import CliRunner
 
@@ -177,34 +178,24 @@ def test_the_scene_and_its_mesh_file_are_never_written_over(tmp_path, monkeypatc
     assert {name: (tmp_path / name).read_bytes() for name in before} == before
 
 
-def test_mesh_does_not_overwrite_without_the_flag(tmp_path, monkeypatch):
+@pytest.mark.parametrize("output, existing, message", [
+    ("bar.vtu", "bar.vtu", "the file exists"),
+    # meshio writes bar.xdmf's arrays into bar.h5: a finished run's file of that name was lost to
+    # softsim mesh -o bar.xdmf
+    ("bar.xdmf", "bar.h5", "meshio writes an XDMF file's data to 'bar.h5', which exists"),
+])
+def test_mesh_does_not_overwrite_without_the_flag(tmp_path, monkeypatch, output, existing, message):
     monkeypatch.chdir(tmp_path)
     scene = write_scene(tmp_path, 0.002)
     runner = CliRunner()
-    (tmp_path / "bar.vtu").write_text("mine\n")
-    result = runner.invoke(cli, ["mesh", str(scene), "-o", "bar.vtu"])
+    (tmp_path / existing).write_text("mine\n")
+    result = runner.invoke(cli, ["mesh", str(scene), "-o", output])
     assert result.exit_code == 1
     assert result.stderr.strip().splitlines() == [
-        "Error: --output = 'bar.vtu': the file exists; pass --overwrite to replace it"]
-    assert (tmp_path / "bar.vtu").read_text() == "mine\n"
-    assert runner.invoke(cli, ["mesh", str(scene), "-o", "bar.vtu", "--overwrite"]).exit_code == 0
-
-
-def test_mesh_to_xdmf_does_not_overwrite_the_h5_beside_it_without_the_flag(tmp_path, monkeypatch):
-    """meshio writes ``bar.xdmf``'s arrays into ``bar.h5``: a finished run's file of that name was
-    lost to ``softsim mesh -o bar.xdmf``."""
-    monkeypatch.chdir(tmp_path)
-    scene = write_scene(tmp_path, 0.002)
-    runner = CliRunner()
-    (tmp_path / "bar.h5").write_text("a run's frames\n")
-    result = runner.invoke(cli, ["mesh", str(scene), "-o", "bar.xdmf"])
-    assert result.exit_code == 1
-    assert result.stderr.strip().splitlines() == [
-        "Error: --output = 'bar.xdmf': meshio writes an XDMF file's data to 'bar.h5', which exists; pass "
-        "--overwrite to replace it"]
-    assert (tmp_path / "bar.h5").read_text() == "a run's frames\n" and not (tmp_path / "bar.xdmf").exists()
-    assert runner.invoke(cli, ["mesh", str(scene), "-o", "bar.xdmf", "--overwrite"]).exit_code == 0
-    assert h5py.is_hdf5(tmp_path / "bar.h5")
+        f"Error: --output = '{output}': {message}; pass --overwrite to replace it"]
+    assert (tmp_path / existing).read_text() == "mine\n" and sorted(p.name for p in tmp_path.glob("bar.*")) == [existing]
+    assert runner.invoke(cli, ["mesh", str(scene), "-o", output, "--overwrite"]).exit_code == 0
+    assert meshio.read(tmp_path / output).cells_dict["tetra"].shape[1] == 4
 
 
 def _stop_after(frames):
