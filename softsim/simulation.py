@@ -303,7 +303,7 @@ def simulate(prepared, output_path, progress=None, should_stop=None, resume=Fals
     started = _time.perf_counter()
     with compile_timer() as compiled:
         status, frames, steps_taken, step_reached = _simulate(prepared, output_path, progress, should_stop, resume,
-                                                              overwrite, compiled)
+                                                              overwrite, compiled, started)
     wall = _time.perf_counter() - started
     compiling = compiled()
     plan = prepared.plan
@@ -313,10 +313,11 @@ def simulate(prepared, output_path, progress=None, should_stop=None, resume=Fals
                       compile_time_s=compiling, step=step_reached)
 
 
-def _simulate(prepared, output_path, progress, should_stop, resume, overwrite, compiled):
+def _simulate(prepared, output_path, progress, should_stop, resume, overwrite, compiled, started):
     """``simulate``'s run: returns its status, the frames in the file, the steps taken (sub-steps
     counted) and the step of the plan reached.  compiled: the compile time so far [s], a
-    function (``kernels.jit.compile_timer``), which the file records with its wall time."""
+    function (``kernels.jit.compile_timer``), which the file records with its wall time, counted
+    from ``started`` (a ``time.perf_counter()`` reading, when the compile timer started)."""
     scene, model, plan = prepared.scene, prepared.model, prepared.plan
     state = initial_state(scene, model)
     fields = scene.output.fields
@@ -331,7 +332,7 @@ def _simulate(prepared, output_path, progress, should_stop, resume, overwrite, c
         writer.compile_time_s = compiled()
 
     if resume:
-        writer, stored = RunWriter.reopen(output_path, fields, frames=len(plan.frame_steps))
+        writer, stored = RunWriter.reopen(output_path, fields, frames=len(plan.frame_steps), started=started)
         state.x[...] = model.from_user_order(stored["positions"])
         state.v[...] = model.from_user_order(stored["velocities"])
         state.step = int(stored["step"])
@@ -341,7 +342,7 @@ def _simulate(prepared, output_path, progress, should_stop, resume, overwrite, c
         check_writable(output_path, overwrite)
         writer = RunWriter(output_path, model.mesh.points, model.mesh.tets, model.to_user_order(model.fixed),
                            scene_to_yaml(scene), plan.dt, plan.total_steps, fields, frames=len(plan.frame_steps),
-                           resume_template=guard.snapshot())
+                           resume_template=guard.snapshot(), started=started)
     with writer:
         if not resume:
             substeps = guard.check(state, 0.0)

@@ -174,17 +174,20 @@ class RunWriter:
     change that a kill during its flush could tear).
     resume_template: a dict shaped like the ``resume_state`` every frame will pass (arrays and
     numbers a resume needs besides positions and velocities); its slots are made up front.
+    started: the ``time.perf_counter()`` reading the run's wall time counts from (default: now),
+    the start of the caller's work, so that the compiling before the file is made (counted in
+    ``compile_time_s``) is counted in ``wall_time_s`` too.
     """
 
     def __init__(self, path, points, tets, fixed, config_yaml, dt, steps, fields=(), xdmf=True, frames=1,
-                 resume_template=None):
+                 resume_template=None, started=None):
         self.path = Path(path)
         self.fields = tuple(fields)
         self.node_count = points.shape[0]
         self.tet_count = tets.shape[0]
         self.xdmf = xdmf
         self._xdmf_written_at = -np.inf
-        self._started = _time.perf_counter()
+        self._started = _time.perf_counter() if started is None else started
         self.frame_count = 0
         self._last_slot = None
         self.compile_time_s = 0.0        # this session's compiling [s], kept up to date by the caller
@@ -250,13 +253,14 @@ class RunWriter:
         f.flush()
 
     @classmethod
-    def reopen(cls, path, fields=(), xdmf=True, frames=1):
+    def reopen(cls, path, fields=(), xdmf=True, frames=1, started=None):
         """``(writer, state)`` to continue the run in ``path`` from its last complete frame.
 
         ``state`` is a dict of ``state/``: ``positions``, ``velocities`` (n, 3) in the user's order,
         ``time``, ``step`` and any extra arrays and numbers the run stored for a resume.  Rows
         after that state (a frame cut off by a crash) are written over; the datasets get rows for
-        ``frames`` frames again; the status is ``running`` again.
+        ``frames`` frames again; the status is ``running`` again.  started: as for a new writer,
+        this session's start; the stored wall time goes on from it.
         """
         self = cls.__new__(cls)
         self.path = Path(path)
@@ -278,7 +282,7 @@ class RunWriter:
             raise SimulationError(f"--resume: '{path}' holds no intact resume state")
         self._last_slot, state = newest
         self.frame_count = int(state["frames"])
-        self._started = _time.perf_counter() - float(state["wall_time_s"])
+        self._started = (_time.perf_counter() if started is None else started) - float(state["wall_time_s"])
         self.compile_time_s = 0.0
         self._compile_before = float(f.attrs.get("compile_time_s", 0.0))
         for dataset in _frame_datasets(f):
