@@ -17,8 +17,7 @@ from . import run as run_command
 from . import stability as stability_command
 from . import sweep as sweep_command
 from . import verify as verify_command
-
-EXIT_INTERRUPTED = 130
+from .launch import EXIT_INTERRUPTED
 
 
 class _EchoHandler(logging.Handler):
@@ -51,7 +50,7 @@ class SoftsimGroup(click.Group):
 
 @click.group(cls=SoftsimGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.option("-v", "--verbose", count=True, help="More messages (repeatable).")
-@click.option("-q", "--quiet", is_flag=True, help="Only errors.")
+@click.option("-q", "--quiet", is_flag=True, help="No warnings or notes: errors and the result only.")
 @click.version_option(__version__, prog_name="softsim")
 @click.pass_context
 def cli(ctx, verbose, quiet):

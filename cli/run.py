@@ -12,6 +12,7 @@ from softsim.io.hdf5 import check_writable
 from softsim.mesh import format_quality
 from softsim.simulation import check_resumable, check_run_cost, prepare, simulate
 
+from .launch import EXIT_INTERRUPTED
 from .options import scene_argument, set_option
 
 log = logging.getLogger("softsim")
@@ -26,7 +27,6 @@ def _progress_bar(total_steps):
     return tqdm(total=total_steps, unit="step", file=sys.stderr, leave=False, dynamic_ncols=True)
 
 
-EXIT_INTERRUPTED = 130
 # The summary line names the compile time when it is at least this [s].
 COMPILE_NOTE_S = 0.5
 

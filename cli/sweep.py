@@ -11,9 +11,10 @@ import click
 from softsim.sweep import expand_sweep, load_sweep, local_layout, plan_runs, plot_summary
 from softsim.sweep.runner import local_client, remote_client, run_sweep
 
+from .launch import EXIT_INTERRUPTED
+
 log = logging.getLogger("softsim")
 
-EXIT_INTERRUPTED = 130
 EXIT_RUNS_FAILED = 1
 
 

@@ -392,3 +392,21 @@ def test_a_given_dt_above_the_stable_step_is_substepped_refused_or_allowed(work)
     assert len(warning) == 1 and "time.dt = 0.01" in warning[0], allowed.stderr
     auto = ok("run", write(work, SCENE), "-o", "auto.h5")
     assert "warning" not in auto.stderr
+
+
+def test_ctrl_c_while_the_commands_load_is_one_line_and_exit_130():
+    """The console script (``softsim.cli.launch``) loads the commands inside a handler: a Ctrl-C in
+    that half second printed a 20-line traceback from inside Numba's imports.  The Ctrl-C is made
+    to land there by an ``__import__`` that raises it when numba is imported."""
+    code = ("import builtins, sys\n"
+            "real = builtins.__import__\n"
+            "def interrupted(name, *args, **kwargs):\n"
+            "    if name == 'numba':\n"
+            "        raise KeyboardInterrupt\n"
+            "    return real(name, *args, **kwargs)\n"
+            "builtins.__import__ = interrupted\n"
+            "sys.argv = ['softsim', 'run', 'scene.yaml']\n"
+            "from softsim.cli.launch import main\n"
+            "main()\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert (done.returncode, done.stderr, done.stdout) == (130, "softsim: interrupted\n", "")
