@@ -502,3 +502,8 @@ def test_check_mesh_output_names_the_data_file_that_would_replace_an_input(tmp_p
                                         r"scene's own file '.*m\.h5', which meshing reads; choose another"):
         check_mesh_output(tmp_path / "m.xdmf", overwrite=True, inputs=[tmp_path / "m.h5"])
     check_mesh_output(tmp_path / "m.xdmf", overwrite=False, inputs=[tmp_path / "other.h5"])   # nothing there: fine
+    check_mesh_output(tmp_path / "m.1.VTU")
+    for name, shown in (("m.foo", "'.foo'"), ("mesh", "'(none)'")):      # refused before meshing
+        with pytest.raises(MeshError, match=rf"^--output = '.*{name}': meshio writes no format by the extension "
+                                            rf"{re.escape(shown)}; use one like \.vtu"):
+            check_mesh_output(tmp_path / name)

@@ -10,8 +10,8 @@ from ..io.hdf5 import being_written
 def check_mesh_output(output, overwrite=False, inputs=()):
     """Raise ``MeshError`` unless ``write_mesh`` may write ``output`` (checked before meshing):
     its folder exists; neither it nor, for XDMF, the ``.h5`` data file meshio writes beside it is
-    one of ``inputs`` (the scene's own files) or a file a run is writing now; and unless
-    ``overwrite`` neither exists."""
+    one of ``inputs`` (the scene's own files) or a file a run is writing now; its extension names
+    a format meshio knows; and unless ``overwrite`` neither exists."""
     folder = Path(output).resolve().parent
     if not folder.is_dir():
         raise MeshError(f"--output = '{output}': folder {folder} does not exist")
@@ -21,6 +21,9 @@ def check_mesh_output(output, overwrite=False, inputs=()):
         which = "is" if Path(written) == Path(output) else f"its data file '{written}' is"
         raise MeshError(f"--output = '{output}': {which} the scene's own file {describe_input(input_file, name)}, "
                         f"which meshing reads; choose another output name")
+    if not _meshio_extension(output):
+        raise MeshError(f"--output = '{output}': meshio writes no format by the extension "
+                        f"'{''.join(Path(output).suffixes) or '(none)'}'; use one like .vtu, .msh, .xdmf or .vtk")
     for file in with_data_file(output):
         if being_written(file):
             raise MeshError(f"--output = '{output}': another run is writing '{file}' now; choose another output name")
@@ -30,6 +33,14 @@ def check_mesh_output(output, overwrite=False, inputs=()):
                 what = "the file exists" if file == Path(output) else (
                     f"meshio writes an XDMF file's data to '{file}', which exists")
                 raise MeshError(f"--output = '{output}': {what}; pass --overwrite to replace it")
+
+
+def _meshio_extension(path):
+    """Whether meshio knows a format by ``path``'s extension (its last suffixes, e.g. ``.vtu``)."""
+    import meshio
+
+    suffixes = [suffix.lower() for suffix in Path(path).suffixes]
+    return any("".join(suffixes[k:]) in meshio.extension_to_filetypes for k in range(len(suffixes)))
 
 
 def write_mesh(tet_mesh, output):
