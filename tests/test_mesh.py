@@ -507,3 +507,21 @@ def test_check_mesh_output_names_the_data_file_that_would_replace_an_input(tmp_p
         with pytest.raises(MeshError, match=rf"^--output = '.*{name}': meshio writes no format by the extension "
                                             rf"{re.escape(shown)}; use one like \.vtu"):
             check_mesh_output(tmp_path / name)
+
+
+def test_a_large_gmsh_mesh_is_announced_before_gmsh_starts(monkeypatch, caplog):
+    """gmsh says nothing while it meshes (minutes for a few million tets): softsim says it starts."""
+    import softsim.mesh as mesh_module
+    from softsim.config.schema import Mesh
+
+    spec = Mesh(shape="sphere", radius=0.1, element_size=0.05)
+    monkeypatch.setattr(mesh_module, "ANNOUNCED_MESH_TETS", mesh_module.estimated_tet_count(spec))
+    with caplog.at_level(logging.INFO, logger="softsim"):
+        build_mesh(spec)
+    assert re.search(r"mesh.element_size = 0.05: gmsh is meshing about [0-9.e-]+ million tetrahedra, which takes "
+                     r"minutes", caplog.text), caplog.text
+    caplog.clear()
+    monkeypatch.setattr(mesh_module, "ANNOUNCED_MESH_TETS", mesh_module.estimated_tet_count(spec) + 1)
+    with caplog.at_level(logging.INFO, logger="softsim"):
+        build_mesh(spec)
+    assert "gmsh is meshing" not in caplog.text

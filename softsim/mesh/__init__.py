@@ -51,6 +51,9 @@ MAX_TETS = 50_000_000
 # 169k-tet gmsh box (381 MB peak, ~170 MB of it the interpreter and libraries) and 3.4 kB for a
 # 1M-tet structured beam (3285 MiB peak, ``python -m benchmarks --sections memory``).
 MESH_PEAK_BYTES_PER_TET = 3500
+# gmsh meshes with this many tetrahedra or more are announced before gmsh starts: it says nothing
+# for minutes on a few million (2.6M: about three minutes on a 2-core EPYC).
+ANNOUNCED_MESH_TETS = 500_000
 
 
 def available_memory_bytes():
@@ -96,6 +99,9 @@ def raw_tetrahedra(spec):
                         f"{available / 1e9:.3g} GB of memory are available; use a larger element_size")
     if spec.shape == "file":
         return read.read_tetrahedra(spec.file)
+    if estimate >= ANNOUNCED_MESH_TETS and not (spec.shape == "box" and spec.structured):
+        log.info("mesh.element_size = %g: gmsh is meshing about %.2g million tetrahedra, which takes minutes",
+                 spec.element_size, estimate / 1e6)
     if spec.shape == "box" and spec.structured:
         return generate.structured_box(spec.size, spec.origin, spec.element_size)
     if spec.shape == "box":
