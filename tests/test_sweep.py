@@ -128,6 +128,24 @@ def test_bad_sweep_file_via_cli(tmp_path):
     assert not (tmp_path / "out").exists()
 
 
+def test_a_scene_and_a_sweep_file_mixed_up_name_the_other_command(tmp_path):
+    """``softsim sweep scene.yaml`` said ``mesh: unknown section``, ``softsim run sweep.yaml``
+    ``base: unknown section``: now each names the command the file is for."""
+    sweep_file = write_sweep(tmp_path, {"base": "bar.yaml", "parameters": {"material.density": [1e3, 2e3]}})
+    runner = CliRunner()
+    as_scene = runner.invoke(cli, ["run", str(sweep_file), "-o", str(tmp_path / "x.h5")])
+    assert as_scene.exit_code == 1
+    assert as_scene.stderr.strip().splitlines() == [
+        f"Error: {sweep_file}: is a sweep file (it has 'base', and no 'mesh'); run it with softsim sweep {sweep_file}"]
+    scene_file = tmp_path / "bar.yaml"
+    as_sweep = runner.invoke(cli, ["sweep", str(scene_file), "-o", str(tmp_path / "out")])
+    assert as_sweep.exit_code == 1
+    assert as_sweep.stderr.strip().splitlines() == [
+        f"Error: {scene_file}: is a scene file (it has 'mesh', and no 'base'); run it with softsim run {scene_file}, "
+        f"or sweep it from a sweep file whose base it is"]
+    assert not (tmp_path / "out").exists() and not (tmp_path / "x.h5").exists()
+
+
 def test_combinations_are_revalidated_copies(tmp_path):
     path = write_sweep(tmp_path, {"base": "bar.yaml",
                                   "parameters": {"material.youngs_modulus": {"start": 1e6, "stop": 1e8, "num": 3,

@@ -260,6 +260,8 @@ def load_scene(path: Union[str, Path], overrides: Iterable[str] = ()) -> Scene:
     if not isinstance(data, Mapping):
         got = "an empty file" if data is None else _show(data)
         raise ConfigError(f"{path}: {_MAPPING_REQUIRED}; got {got}")
+    if "base" in data and "mesh" not in data:
+        raise ConfigError(f"{path}: is a sweep file (it has 'base', and no 'mesh'); run it with softsim sweep {path}")
     data = apply_overrides(data, overrides)
     return parse_scene(data, base_dir=path.absolute().parent)
 

@@ -312,6 +312,9 @@ def load_sweep(path: Union[str, Path]) -> Sweep:
     data = read_yaml(path, "sweep file")
     if data is None:
         raise ConfigError(f"{path}: the sweep file is empty; it needs base and parameters (or zip)")
+    if isinstance(data, Mapping) and "mesh" in data and "base" not in data:
+        raise ConfigError(f"{path}: is a scene file (it has 'mesh', and no 'base'); run it with softsim run {path}, "
+                          f"or sweep it from a sweep file whose base it is")
     return parse_sweep(data, path.absolute().parent, source=str(path))
 
 
