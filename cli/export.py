@@ -27,4 +27,5 @@ def export(results, fmt, frames, output, overwrite):
       softsim export cantilever.h5 --format xdmf -o warp.xdmf
     """
     written = export_frames(results, fmt, output, frames, overwrite)
-    click.echo(f"wrote {len(written)} file{'s' if len(written) != 1 else ''}: {written[0]}" + (f" ... {written[-1]}" if len(written) > 1 else ""))
+    files = f"{len(written)} file{'s' if len(written) != 1 else ''}"
+    click.echo(f"wrote {files}: {written[0]}" + (f" ... {written[-1]}" if len(written) > 1 else ""))

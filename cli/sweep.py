@@ -18,6 +18,11 @@ log = logging.getLogger("softsim")
 EXIT_RUNS_FAILED = 1
 
 
+def _runs(count):
+    """``1 run``, ``6 runs``."""
+    return f"{count} run{'s' if count != 1 else ''}"
+
+
 def _progress_bar(total):
     """A tqdm bar of runs on a terminal's stderr, or None when stderr is not a TTY."""
     if not sys.stderr.isatty():
@@ -104,7 +109,7 @@ def sweep(sweep_file, output_dir, workers, scheduler, shared_dir, force, dry_run
         for run in runs:
             action = "run" if run.index in running else "skip (complete)"
             click.echo(f"{run.index + 1:>4}  {run.path}  {action}")
-        click.echo(f"{len(runs)} run{'s' if len(runs) != 1 else ''}, {len(to_run)} to run, {len(runs) - len(to_run)} complete")
+        click.echo(f"{_runs(len(runs))}, {len(to_run)} to run, {len(runs) - len(to_run)} complete")
         return
     output_dir.mkdir(parents=True, exist_ok=True)
     to_run, _ = plan_runs(runs, force)      # a file in the way is refused before any worker starts
@@ -152,7 +157,7 @@ def sweep(sweep_file, output_dir, workers, scheduler, shared_dir, force, dry_run
                              title=Path(sweep_file).name)
         log.info("plot: %s", image)
     counts = result.counts
-    click.echo(f"{output_dir}: {len(result.rows)} run{'s' if len(result.rows) != 1 else ''}, {counts['complete']} complete "
+    click.echo(f"{output_dir}: {_runs(len(result.rows))}, {counts['complete']} complete "
                f"({result.skipped} skipped, already complete), {len(result.failed)} failed; "
                f"summary in {result.summary_paths[0]}")
     for row in result.failed:
