@@ -293,6 +293,11 @@ BAD_INPUTS = [
      ["output.path", "nowhere/out.h5", "does not exist"]),
     ("output-is-a-folder", SCENE, ["-o", "."], ["'.'", "directory"]),
     ("output-named-like-the-xdmf", SCENE, ["-o", "run.xdmf"], ["run.xdmf", "XDMF", "out.h5"]),
+    # HDF5 under another name was written silently
+    ("output-not-an-hdf5-name", SCENE, ["-o", "out.txt"], ["output.path = 'out.txt'", ".h5 or .hdf5"]),
+    ("output-named-like-vtu", SCENE, ["-o", "beam.vtu"], ["beam.vtu", ".h5 or .hdf5", "softsim export"]),
+    ("output-without-suffix-in-scene", scene_with(("path: out.h5", "path: results")), [],
+     ["output.path = 'results'", ".h5 or .hdf5"]),
     # a folder that takes no new file (for root too): caught before meshing, not as a full disk
     ("output-folder-takes-no-file", SCENE, ["-o", "/proc/out.h5"], ["output.path = '/proc/out.h5'", "folder /proc"]),
     ("output-is-the-scene", SCENE, ["-o", "scene.yaml", "--overwrite"], ["scene.yaml", "the scene's own file"]),

@@ -52,6 +52,8 @@ from .xdmf import write_xdmf
 
 ENERGY_TERMS = ("kinetic", "elastic", "gravity")
 STATUSES = ("running", "complete", "interrupted", "failed")
+# The names a run's output may take: HDF5 under another name (``-o out.txt``) was written silently.
+HDF5_SUFFIXES = (".h5", ".hdf5")
 # Fields stored as frames/<name>, one array row per frame, passed to append_frame(fields=...).
 _ARRAY_FIELDS = tuple(name for name, spec in FIELDS.items()
                       if spec.location in ("vertex", "tet") and name != "velocities")
@@ -72,7 +74,8 @@ def xdmf_path_for(path):
 
 def check_writable(path, overwrite=True, inputs=()):
     """Raise ``SimulationError`` unless a run can write ``path`` and its XDMF file (checked before any
-    work): the folder must exist and take a new file, neither ``path`` nor its XDMF file may be one
+    work): the name must end in an HDF5 suffix (``HDF5_SUFFIXES``), the folder must exist and take a
+    new file, neither ``path`` nor its XDMF file may be one
     of ``inputs`` (the scene's own files, never written over; an XDMF mesh file's ``.h5`` data
     file too), and unless ``overwrite`` neither may exist."""
     folder = Path(path).resolve().parent
@@ -91,6 +94,9 @@ def check_writable(path, overwrite=True, inputs=()):
     if xdmf_path_for(path).resolve() == Path(path).resolve():
         raise SimulationError(f"output.path = '{path}': is the name of the XDMF file written beside the "
                               f"HDF5 file; use an HDF5 name like out.h5")
+    if Path(path).suffix.lower() not in HDF5_SUFFIXES:
+        raise SimulationError(f"output.path = '{path}': a run writes HDF5, so the name must end in "
+                              f"{' or '.join(HDF5_SUFFIXES)} (softsim export converts it to VTU or XDMF)")
     if being_written(path):
         raise SimulationError(f"output.path = '{path}': another run is writing this file now; wait for it to end "
                               f"or choose another output name")
