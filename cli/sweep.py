@@ -136,6 +136,7 @@ def sweep(sweep_file, output_dir, workers, scheduler, shared_dir, force, dry_run
         bar.set_postfix_str(f"done {done - failed}, failed {failed}, running {running}", refresh=False)
         bar.update(done - bar.n)
 
+    result = None
     try:
         with _sigterm_as_interrupt(), client_context as client:
             result = run_sweep(runs, output_dir, client, shared_dir=shared_dir is not None, force=force,
@@ -143,8 +144,12 @@ def sweep(sweep_file, output_dir, workers, scheduler, shared_dir, force, dry_run
     except KeyboardInterrupt:
         if bar is not None:
             bar.close()
-        click.echo(f"softsim: sweep cancelled; runs finished so far are in {output_dir / 'summary.csv'}",
-                   err=True)
+        if result is None:
+            click.echo(f"softsim: sweep cancelled; runs finished so far are in {output_dir / 'summary.csv'}",
+                       err=True)
+        else:   # while the local workers were stopping: every run had ended and the summary is written
+            click.echo(f"softsim: interrupted after the sweep's {_runs(len(result.rows))} ended "
+                       f"({result.counts['complete']} complete); summary in {result.summary_paths[0]}", err=True)
         sys.exit(EXIT_INTERRUPTED)
     if bar is not None:
         bar.close()

@@ -5,6 +5,7 @@ One cluster of two single-threaded process workers serves the whole module; the 
 """
 
 import asyncio
+import contextlib
 import csv
 import os
 import subprocess
@@ -17,6 +18,7 @@ import pytest
 import yaml
 from click.testing import CliRunner
 
+from softsim.cli import sweep as cli_sweep
 from softsim.cli.main import cli
 from softsim.config import parse_scene
 from softsim.errors import ConfigError, MissingDependencyError, SimulationError
@@ -339,6 +341,23 @@ def test_cli_on_an_existing_scheduler_with_a_shared_dir(tmp_path, client):
     assert (out / "youngs_modulus=2e+06.h5").is_file() and (out / "summary.png").stat().st_size > 0
     result = CliRunner().invoke(cli, args[:-2])
     assert "2 runs, 2 complete (2 skipped, already complete)" in result.output
+
+
+def test_ctrl_c_while_the_local_workers_stop_reports_the_finished_sweep(tmp_path, client, monkeypatch):
+    """Ctrl-C after the last run, while the local cluster shut down (seconds), said 'sweep cancelled'
+    of a sweep whose runs had all finished."""
+    @contextlib.contextmanager
+    def interrupted_on_exit(workers, numba_threads):
+        yield client
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli_sweep, "local_client", interrupted_on_exit)
+    path = write_sweep(tmp_path, {"base": "bar.yaml", "parameters": {"material.youngs_modulus": [1.0e6, 2.0e6]}})
+    result = CliRunner().invoke(cli, ["sweep", str(path), "-o", str(tmp_path / "out")])
+    assert result.exit_code == 130
+    assert result.stderr.strip().splitlines()[-1] == (
+        f"softsim: interrupted after the sweep's 2 runs ended (2 complete); summary in {tmp_path / 'out' / 'summary.csv'}")
+    assert [row["status"] for row in read_csv(tmp_path / "out" / "summary.csv")] == ["complete", "complete"]
 
 
 def test_cli_local_cluster_exit_code_on_a_failed_run(tmp_path):
