@@ -5,16 +5,19 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
 import h5py
 import meshio
+import numpy as np
 import pytest
 from click.testing import CliRunner
 
 from softsim.cli.main import cli
-from softsim.io.hdf5 import frames_written, read_resume_state
+from softsim.errors import SimulationError
+from softsim.io.hdf5 import RunWriter, check_writable, frames_written, read_resume_state
 
 SCENE = """\
 mesh: {shape: box, size: [0.3, 0.1, 0.1], element_size: 0.05, structured: true}
@@ -107,6 +110,68 @@ def test_a_file_another_run_is_writing_is_refused_even_with_overwrite(tmp_path, 
     finally:
         process.kill()
         process.communicate()
+
+
+@pytest.mark.parametrize("hdf5_locking", ["TRUE", "FALSE"])
+@pytest.mark.parametrize("existing", [False, True], ids=["new-file", "over-a-complete-file"])
+def test_two_runs_started_together_on_one_output_cannot_both_write_it(tmp_path, monkeypatch, hdf5_locking,
+                                                                        existing):
+    """Both runs pass ``check_writable`` before either has made its file; the second's rename then
+    replaced the first's file, whose frames went on into a file no longer on disk.  Now the second
+    is refused at its rename, leaving nothing behind, and the first's file is the one on disk."""
+    monkeypatch.setenv("HDF5_USE_FILE_LOCKING", hdf5_locking)
+    out = tmp_path / "out.h5"
+    points = np.random.default_rng(0).random((8, 3))
+    tets, fixed = np.array([[0, 1, 2, 3], [4, 5, 6, 7]]), np.zeros(8, bool)
+    if existing:
+        with RunWriter(out, points, tets, fixed, "earlier", 1e-3, 10):
+            pass
+    check_writable(out, overwrite=True)                       # the first run's check
+    check_writable(out, overwrite=True)                       # the second run's, before the first's file exists
+    with RunWriter(out, points, tets, fixed, "first", 1e-3, 10) as first:
+        with pytest.raises(SimulationError, match=r"^output.path = '.*out.h5': another run is writing this file now"):
+            RunWriter(out, points, tets, fixed, "second", 1e-3, 10)
+        first.append_frame(0.0, 0, points, np.zeros_like(points), None, {})
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.h5", "out.xdmf"]     # no partial file left
+    with h5py.File(out, "r") as f:
+        assert f.attrs["config"] == "first" and f.attrs["status"] == "complete" and frames_written(f) == 1
+
+
+def test_the_checks_and_renames_of_two_runs_do_not_interleave(tmp_path, monkeypatch):
+    """The race itself: while the first run renames its file into place, a second (a thread here,
+    another process in life) makes its file and checks; it must wait for the first's rename and
+    then be refused, not rename its own file first and have it replaced."""
+    from softsim.io import hdf5
+
+    out = tmp_path / "out.h5"
+    points = np.random.default_rng(0).random((8, 3))
+    tets, fixed = np.array([[0, 1, 2, 3], [4, 5, 6, 7]]), np.zeros(8, bool)
+    real_replace = os.replace
+    seconds, outcomes = [], []
+
+    def second_run():
+        try:
+            RunWriter(out, points, tets, fixed, "second", 1e-3, 10).finish("complete")
+            outcomes.append("wrote its file")
+        except SimulationError as exc:
+            outcomes.append(str(exc))
+
+    def first_rename(source, target):
+        monkeypatch.setattr(hdf5.os, "replace", real_replace)      # the second run's rename is real
+        second = threading.Thread(target=second_run)
+        seconds.append(second)
+        second.start()
+        second.join(1.0)
+        outcomes.append("waited" if second.is_alive() else "went ahead")
+        real_replace(source, target)
+
+    monkeypatch.setattr(hdf5.os, "replace", first_rename)
+    with RunWriter(out, points, tets, fixed, "first", 1e-3, 10):
+        seconds[0].join(30)                                      # the first run still writing
+    assert outcomes[0] == "waited", outcomes
+    assert len(outcomes) == 2 and "another run is writing this file now" in outcomes[1], outcomes
+    with h5py.File(out, "r") as f:
+        assert f.attrs["config"] == "first"
 
 
 def test_an_existing_output_is_not_overwritten_without_the_flag(tmp_path, monkeypatch):

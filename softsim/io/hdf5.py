@@ -32,6 +32,7 @@ import os
 import shutil
 import signal
 import tempfile
+import threading
 import time as _time
 import zlib
 from pathlib import Path
@@ -97,9 +98,7 @@ def check_writable(path, overwrite=True, inputs=()):
     if Path(path).suffix.lower() not in HDF5_SUFFIXES:
         raise SimulationError(f"output.path = '{path}': a run writes HDF5, so the name must end in "
                               f"{' or '.join(HDF5_SUFFIXES)} (softsim export converts it to VTU or XDMF)")
-    if being_written(path):
-        raise SimulationError(f"output.path = '{path}': another run is writing this file now; wait for it to end "
-                              f"or choose another output name")
+    _refuse_if_being_written(path)
     if not overwrite:
         unfinished = _unfinished_status(path)
         if unfinished:
@@ -138,6 +137,38 @@ def being_written(path):
         return False
     finally:
         os.close(fd)              # closing drops the shared lock, if taken
+
+
+def _refuse_if_being_written(path):
+    if being_written(path):
+        raise SimulationError(f"output.path = '{path}': another run is writing this file now; wait for it to end "
+                              f"or choose another output name")
+
+
+def _move_into_place(partial, path):
+    """Rename the finished file ``partial`` to ``path`` unless another run is writing ``path`` now.
+
+    ``check_writable`` looks before any work, but two runs started together on one output both
+    passed it: the later rename replaced the earlier run's file, which went on writing to a file no
+    longer on disk and reported success.  The check and the rename are made here while holding an
+    exclusive ``flock`` on the folder, and the new file is locked before the folder is released
+    (``RunWriter``: HDF5's lock or the run's own), so a second run sees the first.  Where the
+    folder takes no lock (Windows, some network file systems) the rename is made unguarded."""
+    fd = None
+    if fcntl is not None:
+        try:
+            fd = os.open(path.parent, os.O_RDONLY)
+            fcntl.flock(fd, fcntl.LOCK_EX)
+        except OSError:
+            if fd is not None:
+                os.close(fd)
+            fd = None
+    try:
+        _refuse_if_being_written(path)
+        os.replace(partial, path)
+    finally:
+        if fd is not None:
+            os.close(fd)            # closing drops the folder's lock
 
 
 def _lock_unless_locked(path):
@@ -200,7 +231,7 @@ class RunWriter:
         self._compile_before = 0.0       # earlier sessions' (a resumed run)
         # The file is built under a temporary name and renamed once its mesh and empty frame
         # datasets are on disk, so ``path`` never names a file that a plain reader cannot open.
-        partial = self.path.with_name(f".{self.path.name}.partial-{os.getpid()}")
+        partial = self.path.with_name(f".{self.path.name}.partial-{os.getpid()}-{threading.get_native_id()}")
         try:
             self.file = h5py.File(partial, "w")
         except OSError as exc:
@@ -211,7 +242,7 @@ class RunWriter:
                                 resume_template or {})
             _keep_metadata_until_flush(self.file)
             crash_point("before_rename")
-            os.replace(partial, self.path)
+            _move_into_place(partial, self.path)
             self._open_datasets()
         except BaseException as exc:
             self.file.close()
