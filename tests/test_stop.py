@@ -112,6 +112,11 @@ def test_a_file_another_run_is_writing_is_refused_even_with_overwrite(tmp_path, 
         process.communicate()
 
 
+def two_tets():
+    """``(points, tets, fixed)`` of a mesh small enough to give RunWriter directly."""
+    return np.random.default_rng(0).random((8, 3)), np.array([[0, 1, 2, 3], [4, 5, 6, 7]]), np.zeros(8, bool)
+
+
 @pytest.mark.parametrize("hdf5_locking", ["TRUE", "FALSE"])
 @pytest.mark.parametrize("existing", [False, True], ids=["new-file", "over-a-complete-file"])
 def test_two_runs_started_together_on_one_output_cannot_both_write_it(tmp_path, monkeypatch, hdf5_locking,
@@ -121,8 +126,7 @@ def test_two_runs_started_together_on_one_output_cannot_both_write_it(tmp_path, 
     is refused at its rename, leaving nothing behind, and the first's file is the one on disk."""
     monkeypatch.setenv("HDF5_USE_FILE_LOCKING", hdf5_locking)
     out = tmp_path / "out.h5"
-    points = np.random.default_rng(0).random((8, 3))
-    tets, fixed = np.array([[0, 1, 2, 3], [4, 5, 6, 7]]), np.zeros(8, bool)
+    points, tets, fixed = two_tets()
     if existing:
         with RunWriter(out, points, tets, fixed, "earlier", 1e-3, 10):
             pass
@@ -144,8 +148,7 @@ def test_the_checks_and_renames_of_two_runs_do_not_interleave(tmp_path, monkeypa
     from softsim.io import hdf5
 
     out = tmp_path / "out.h5"
-    points = np.random.default_rng(0).random((8, 3))
-    tets, fixed = np.array([[0, 1, 2, 3], [4, 5, 6, 7]]), np.zeros(8, bool)
+    points, tets, fixed = two_tets()
     real_replace = os.replace
     seconds, outcomes = [], []
 
