@@ -18,6 +18,11 @@ log = logging.getLogger("softsim")
 EXIT_RUNS_FAILED = 1
 
 
+def _echo_failed_runs(result):
+    for row in result.failed:
+        click.echo(f"softsim: run {row['run']} ({row['name']}) {row['status']}: {row['status_reason']}", err=True)
+
+
 def _runs(count):
     """``1 run``, ``6 runs``."""
     return f"{count} run{'s' if count != 1 else ''}"
@@ -148,8 +153,10 @@ def sweep(sweep_file, output_dir, workers, scheduler, shared_dir, force, dry_run
             click.echo(f"softsim: sweep cancelled; runs finished so far are in {output_dir / 'summary.csv'}",
                        err=True)
         else:   # while the local workers were stopping: every run had ended and the summary is written
+            _echo_failed_runs(result)
             click.echo(f"softsim: interrupted after the sweep's {_runs(len(result.rows))} ended "
-                       f"({result.counts['complete']} complete); summary in {result.summary_paths[0]}", err=True)
+                       f"({result.counts['complete']} complete, {len(result.failed)} failed); "
+                       f"summary in {result.summary_paths[0]}", err=True)
         sys.exit(EXIT_INTERRUPTED)
     if bar is not None:
         bar.close()
@@ -165,7 +172,6 @@ def sweep(sweep_file, output_dir, workers, scheduler, shared_dir, force, dry_run
     click.echo(f"{output_dir}: {_runs(len(result.rows))}, {counts['complete']} complete "
                f"({result.skipped} skipped, already complete), {len(result.failed)} failed; "
                f"summary in {result.summary_paths[0]}")
-    for row in result.failed:
-        click.echo(f"softsim: run {row['run']} ({row['name']}) {row['status']}: {row['status_reason']}", err=True)
+    _echo_failed_runs(result)
     if result.failed:
         sys.exit(EXIT_RUNS_FAILED)

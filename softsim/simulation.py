@@ -342,7 +342,7 @@ def _simulate(prepared, output_path, progress, should_stop, resume, overwrite, c
         check_writable(output_path, overwrite)
         writer = RunWriter(output_path, model.mesh.points, model.mesh.tets, model.to_user_order(model.fixed),
                            scene_to_yaml(scene), plan.dt, plan.total_steps, fields, frames=len(plan.frame_steps),
-                           resume_template=guard.snapshot(), started=started)
+                           resume_template=guard.snapshot(), started=started, overwrite=overwrite)
     with writer:
         if not resume:
             substeps = guard.check(state, 0.0)

@@ -149,8 +149,18 @@ def test_the_checks_and_renames_of_two_runs_do_not_interleave(tmp_path, monkeypa
 
     out = tmp_path / "out.h5"
     points, tets, fixed = two_tets()
-    real_replace = os.replace
+    real_replace, real_flock = os.replace, hdf5.fcntl.flock
     seconds, outcomes = [], []
+    second_waits = threading.Event()
+
+    class Fcntl:                     # hdf5's fcntl, telling when the second run waits for the folder
+        LOCK_EX, LOCK_SH, LOCK_NB = hdf5.fcntl.LOCK_EX, hdf5.fcntl.LOCK_SH, hdf5.fcntl.LOCK_NB
+
+        @staticmethod
+        def flock(fd, operation):
+            if seconds and threading.current_thread() is seconds[0] and operation == hdf5.fcntl.LOCK_EX:
+                second_waits.set()
+            return real_flock(fd, operation)
 
     def second_run():
         try:
@@ -164,10 +174,12 @@ def test_the_checks_and_renames_of_two_runs_do_not_interleave(tmp_path, monkeypa
         second = threading.Thread(target=second_run)
         seconds.append(second)
         second.start()
-        second.join(1.0)
-        outcomes.append("waited" if second.is_alive() else "went ahead")
+        second_waits.wait(30)                                      # it asked for the folder's lock ...
+        second.join(0.2)
+        outcomes.append("waited" if second.is_alive() else "went ahead")   # ... and did not get it
         real_replace(source, target)
 
+    monkeypatch.setattr(hdf5, "fcntl", Fcntl)
     monkeypatch.setattr(hdf5.os, "replace", first_rename)
     with RunWriter(out, points, tets, fixed, "first", 1e-3, 10):
         seconds[0].join(30)                                      # the first run still writing
@@ -175,6 +187,33 @@ def test_the_checks_and_renames_of_two_runs_do_not_interleave(tmp_path, monkeypa
     assert len(outcomes) == 2 and "another run is writing this file now" in outcomes[1], outcomes
     with h5py.File(out, "r") as f:
         assert f.attrs["config"] == "first"
+
+
+def test_a_file_made_after_the_check_is_not_replaced_without_overwrite(tmp_path):
+    """A run without --overwrite whose check passed, while another run made the file and ended
+    before this one renamed its own into place: the finished file stays."""
+    out = tmp_path / "out.h5"
+    points, tets, fixed = two_tets()
+    check_writable(out, overwrite=False)                         # nothing there yet
+    with RunWriter(out, points, tets, fixed, "other", 1e-3, 10):
+        pass
+    with pytest.raises(SimulationError, match=r"the file exists; pass --overwrite to replace it"):
+        RunWriter(out, points, tets, fixed, "this", 1e-3, 10, overwrite=False)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.h5", "out.xdmf"]
+    with h5py.File(out, "r") as f:
+        assert f.attrs["config"] == "other"
+
+
+@pytest.mark.parametrize("hdf5_locking", ["TRUE", "FALSE"])
+def test_a_resume_is_refused_on_a_file_a_new_run_has_just_made(tmp_path, monkeypatch, hdf5_locking):
+    """A resume checked before a new run renamed its file into place: it opened that file too,
+    and with HDF5's locking off both wrote it."""
+    monkeypatch.setenv("HDF5_USE_FILE_LOCKING", hdf5_locking)
+    out = tmp_path / "out.h5"
+    points, tets, fixed = two_tets()
+    with RunWriter(out, points, tets, fixed, "new", 1e-3, 10):
+        with pytest.raises(SimulationError, match=r"^--resume: another run is writing '.*out.h5' now"):
+            RunWriter.reopen(out)
 
 
 def test_an_existing_output_is_not_overwritten_without_the_flag(tmp_path, monkeypatch):

@@ -356,7 +356,8 @@ def test_ctrl_c_while_the_local_workers_stop_reports_the_finished_sweep(tmp_path
     result = CliRunner().invoke(cli, ["sweep", str(path), "-o", str(tmp_path / "out")])
     assert result.exit_code == 130
     assert result.stderr.strip().splitlines()[-1] == (
-        f"softsim: interrupted after the sweep's 2 runs ended (2 complete); summary in {tmp_path / 'out' / 'summary.csv'}")
+        f"softsim: interrupted after the sweep's 2 runs ended (2 complete, 0 failed); "
+        f"summary in {tmp_path / 'out' / 'summary.csv'}")
     assert [row["status"] for row in read_csv(tmp_path / "out" / "summary.csv")] == ["complete", "complete"]
 
 

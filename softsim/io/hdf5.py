@@ -28,6 +28,7 @@ ends, trims them to it.  A kill during that final trim and status write is not c
 has no journal).  An XDMF file beside it (``out.xdmf``) lets ParaView play the frames.
 """
 
+import contextlib
 import os
 import shutil
 import signal
@@ -95,7 +96,7 @@ def check_writable(path, overwrite=True, inputs=()):
     if xdmf_path_for(path).resolve() == Path(path).resolve():
         raise SimulationError(f"output.path = '{path}': is the name of the XDMF file written beside the "
                               f"HDF5 file; use an HDF5 name like out.h5")
-    if Path(path).suffix.lower() not in HDF5_SUFFIXES:
+    if not Path(path).name.lower().endswith(HDF5_SUFFIXES):
         raise SimulationError(f"output.path = '{path}': a run writes HDF5, so the name must end in "
                               f"{' or '.join(HDF5_SUFFIXES)} (softsim export converts it to VTU or XDMF)")
     _refuse_if_being_written(path)
@@ -145,30 +146,40 @@ def _refuse_if_being_written(path):
                               f"or choose another output name")
 
 
-def _move_into_place(partial, path):
-    """Rename the finished file ``partial`` to ``path`` unless another run is writing ``path`` now.
-
-    ``check_writable`` looks before any work, but two runs started together on one output both
-    passed it: the later rename replaced the earlier run's file, which went on writing to a file no
-    longer on disk and reported success.  The check and the rename are made here while holding an
-    exclusive ``flock`` on the folder, and the new file is locked before the folder is released
-    (``RunWriter``: HDF5's lock or the run's own), so a second run sees the first.  Where the
-    folder takes no lock (Windows, some network file systems) the rename is made unguarded."""
+@contextlib.contextmanager
+def _folder_locked(folder):
+    """Hold an exclusive ``flock`` on ``folder`` while inside: softsim processes check and claim an
+    output name in it one at a time (``_move_into_place``, ``RunWriter.reopen``).  Unguarded where
+    the folder takes no lock: Windows, a folder this user cannot read, and network file systems,
+    where a lock holds on one host at most, not against a run on another."""
     fd = None
-    if fcntl is not None:
-        try:
-            fd = os.open(path.parent, os.O_RDONLY)
-            fcntl.flock(fd, fcntl.LOCK_EX)
-        except OSError:
-            if fd is not None:
-                os.close(fd)
-            fd = None
     try:
-        _refuse_if_being_written(path)
-        os.replace(partial, path)
+        if fcntl is not None:
+            try:
+                fd = os.open(folder, os.O_RDONLY)
+                fcntl.flock(fd, fcntl.LOCK_EX)
+            except OSError:
+                pass
+        yield
     finally:
         if fd is not None:
             os.close(fd)            # closing drops the folder's lock
+
+
+def _move_into_place(partial, path, overwrite=True):
+    """Rename the finished file ``partial`` to ``path`` unless another run is writing ``path`` now
+    (or, unless ``overwrite``, ``path`` exists).
+
+    ``check_writable`` looks before any work, but two runs started together on one output both
+    passed it: the later rename replaced the earlier run's file, which went on writing to a file no
+    longer on disk and reported success.  The check and the rename are made here under the
+    folder's lock (``_folder_locked``), and the new file is locked before the folder is released
+    (``RunWriter``: HDF5's lock or the run's own), so a second run sees the first."""
+    with _folder_locked(path.parent):
+        _refuse_if_being_written(path)
+        if not overwrite and path.exists():
+            raise SimulationError(f"output.path = '{path}': the file exists; pass --overwrite to replace it")
+        os.replace(partial, path)
 
 
 def _lock_unless_locked(path):
@@ -214,10 +225,12 @@ class RunWriter:
     started: the ``time.perf_counter()`` reading the run's wall time counts from (default: now),
     the start of the caller's work, so that the compiling before the file is made (counted in
     ``compile_time_s``) is counted in ``wall_time_s`` too.
+    overwrite: whether the file may replace one at ``path``, checked as it is renamed into place
+    (``_move_into_place``); a file another run is writing is never replaced.
     """
 
     def __init__(self, path, points, tets, fixed, config_yaml, dt, steps, fields=(), xdmf=True, frames=1,
-                 resume_template=None, started=None):
+                 resume_template=None, started=None, overwrite=True):
         self.path = Path(path)
         self.fields = tuple(fields)
         self.node_count = points.shape[0]
@@ -242,7 +255,7 @@ class RunWriter:
                                 resume_template or {})
             _keep_metadata_until_flush(self.file)
             crash_point("before_rename")
-            _move_into_place(partial, self.path)
+            _move_into_place(partial, self.path, overwrite)
             self._open_datasets()
         except BaseException as exc:
             self.file.close()
@@ -304,11 +317,14 @@ class RunWriter:
         self.fields = tuple(fields)
         self.xdmf = xdmf
         self._xdmf_written_at = -np.inf
-        try:
-            self.file = h5py.File(self.path, "a")
-        except OSError as exc:
-            raise SimulationError(f"output.path = '{path}': cannot reopen the file to resume ({exc})") from None
-        self._lock = _lock_unless_locked(self.path)
+        with _folder_locked(self.path.parent):     # against a new run renaming its file into place
+            if being_written(self.path):
+                raise SimulationError(f"--resume: another run is writing '{path}' now; wait for it to end")
+            try:
+                self.file = h5py.File(self.path, "a")
+            except OSError as exc:
+                raise SimulationError(f"output.path = '{path}': cannot reopen the file to resume ({exc})") from None
+            self._lock = _lock_unless_locked(self.path)
         f = self.file
         self.node_count = f["mesh/points"].shape[0]
         self.tet_count = f["mesh/tets"].shape[0]
