@@ -23,7 +23,8 @@ from .integrators.guard import RECHECK_STEPS, FrameGuard, ground_spring_energy
 from .integrators.stability import exact_stable_step, nodal_frequency_bound
 from .integrators.timestep import (AUTO_EIGEN_ITERATIONS, AUTO_EIGEN_MIN_STEPS, AUTO_EIGEN_SAFETY, AUTO_SAFETY,
                                    dilatational_wave_speed, plan_time)
-from .io.hdf5 import RunWriter, being_written, check_writable, frames_written, free_bytes, read_resume_state
+from .io.hdf5 import (RunWriter, check_writable, frames_written, free_bytes, read_resume_state,
+                      refuse_if_being_written)
 from .kernels.energy import elastic_energy, gravity_energy, kinetic_energy
 from .kernels.fields import tet_fields
 from .kernels.jit import compile_timer, threading_layer
@@ -479,8 +480,7 @@ def check_resumable(scene, output_path):
     path = Path(output_path)
     if not path.is_file():
         raise SimulationError(f"--resume: '{output_path}' does not exist; there is nothing to resume")
-    if being_written(path):
-        raise SimulationError(f"--resume: another run is writing '{output_path}' now; wait for it to end")
+    refuse_if_being_written(output_path, resuming=True)
     try:
         with h5py.File(path, "r") as f:
             status = str(f.attrs.get("status", ""))

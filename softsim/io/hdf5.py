@@ -99,14 +99,13 @@ def check_writable(path, overwrite=True, inputs=()):
     if not Path(path).name.lower().endswith(HDF5_SUFFIXES):
         raise SimulationError(f"output.path = '{path}': a run writes HDF5, so the name must end in "
                               f"{' or '.join(HDF5_SUFFIXES)} (softsim export converts it to VTU or XDMF)")
-    _refuse_if_being_written(path)
+    refuse_if_being_written(path)
     if not overwrite:
         unfinished = _unfinished_status(path)
         if unfinished:
             raise SimulationError(f"output.path = '{path}': the file holds an unfinished run (status: "
                                   f"{unfinished}); pass --resume to continue it or --overwrite to replace it")
-        if Path(path).exists():
-            raise SimulationError(f"output.path = '{path}': the file exists; pass --overwrite to replace it")
+        _refuse_if_exists(path)
         if xdmf_path_for(path).exists():
             raise SimulationError(f"output.path = '{path}': the XDMF file {xdmf_path_for(path)} written beside "
                                   f"it exists; pass --overwrite to replace it")
@@ -140,10 +139,21 @@ def being_written(path):
         os.close(fd)              # closing drops the shared lock, if taken
 
 
-def _refuse_if_being_written(path):
-    if being_written(path):
-        raise SimulationError(f"output.path = '{path}': another run is writing this file now; wait for it to end "
-                              f"or choose another output name")
+def refuse_if_being_written(path, resuming=False):
+    """Raise ``SimulationError`` if another run is writing ``path`` now (``being_written``); the
+    message names ``--resume`` when ``resuming``, else ``output.path``."""
+    if not being_written(path):
+        return
+    if resuming:
+        raise SimulationError(f"--resume: another run is writing '{path}' now; wait for it to end")
+    raise SimulationError(f"output.path = '{path}': another run is writing this file now; wait for it to end "
+                          f"or choose another output name")
+
+
+def _refuse_if_exists(path):
+    """Raise ``SimulationError`` if ``path`` exists (a run without ``--overwrite``)."""
+    if Path(path).exists():
+        raise SimulationError(f"output.path = '{path}': the file exists; pass --overwrite to replace it")
 
 
 @contextlib.contextmanager
@@ -176,9 +186,9 @@ def _move_into_place(partial, path, overwrite=True):
     folder's lock (``_folder_locked``), and the new file is locked before the folder is released
     (``RunWriter``: HDF5's lock or the run's own), so a second run sees the first."""
     with _folder_locked(path.parent):
-        _refuse_if_being_written(path)
-        if not overwrite and path.exists():
-            raise SimulationError(f"output.path = '{path}': the file exists; pass --overwrite to replace it")
+        refuse_if_being_written(path)
+        if not overwrite:
+            _refuse_if_exists(path)
         os.replace(partial, path)
 
 
@@ -318,8 +328,7 @@ class RunWriter:
         self.xdmf = xdmf
         self._xdmf_written_at = -np.inf
         with _folder_locked(self.path.parent):     # against a new run renaming its file into place
-            if being_written(self.path):
-                raise SimulationError(f"--resume: another run is writing '{path}' now; wait for it to end")
+            refuse_if_being_written(path, resuming=True)
             try:
                 self.file = h5py.File(self.path, "a")
             except OSError as exc:
