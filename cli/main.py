@@ -7,6 +7,7 @@ import click
 
 from softsim import __version__
 from softsim.errors import SoftsimError
+from softsim.kernels.jit import on_first_compile
 
 from . import export as export_command
 from . import info as info_command
@@ -20,11 +21,23 @@ from . import verify as verify_command
 from .launch import EXIT_INTERRUPTED
 
 
+# Said as a command starts compiling kernels its Numba disk cache does not hold.
+COMPILE_NOTICE = ("compiling kernels not yet in the cache, once: up to a few minutes this first time; "
+                  "later runs load them from the cache")
+
+
 class _EchoHandler(logging.Handler):
-    """Library log records as one line each on stderr: ``warning: ...``."""
+    """Library log records as one line each on stderr: ``warning: ...``; through tqdm where
+    ``softsim run`` may show a progress bar (imported on a terminal), so that the line is not
+    drawn onto the bar."""
 
     def emit(self, record):
-        click.echo(f"{record.levelname.lower()}: {record.getMessage()}", err=True)
+        line = f"{record.levelname.lower()}: {record.getMessage()}"
+        tqdm = sys.modules.get("tqdm")
+        if tqdm is not None:
+            tqdm.tqdm.write(line, file=sys.stderr)
+        else:
+            click.echo(line, err=True)
 
 
 class SoftsimGroup(click.Group):
@@ -67,6 +80,7 @@ def cli(ctx, verbose, quiet):
     logger.handlers[:] = [_EchoHandler()]
     logger.propagate = False
     logger.setLevel(logging.ERROR if quiet else logging.DEBUG if verbose > 1 else logging.INFO)
+    ctx.with_resource(on_first_compile(lambda: logger.info(COMPILE_NOTICE)))
 
 
 cli.add_command(run_command.run)

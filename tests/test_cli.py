@@ -55,6 +55,15 @@ def invoke(*args):
     return CliRunner().invoke(cli, [str(a) for a in args])
 
 
+def error_lines(stderr):
+    """The lines of ``stderr`` but for the notice of compiling (``cli.main.COMPILE_NOTICE``), which
+    precedes an error found after a first compile when the cache is cold (a tangled mesh file is
+    found by a compiled kernel)."""
+    from softsim.cli.main import COMPILE_NOTICE
+
+    return [line for line in stderr.splitlines() if COMPILE_NOTICE not in line]
+
+
 def ok(*args):
     result = invoke(*args)
     assert result.exit_code == 0, (result.output, result.exception)
@@ -319,7 +328,7 @@ def test_bad_input_gets_one_line_and_no_output(case, work, tmp_path):
     assert result.exit_code != 130
     # a handled error, not an exception escaping click (which a terminal shows as a traceback)
     assert result.exception is None or isinstance(result.exception, SystemExit), repr(result.exception)
-    lines = result.stderr.splitlines()
+    lines = error_lines(result.stderr)
     assert len(lines) == 1, result.stderr
     assert "Traceback" not in result.output
     for part in expected:
@@ -378,6 +387,62 @@ def test_mesh_command_reports_quality(work):
     assert "dihedral" in result.stderr and f"{TETS} tets" in result.stderr
 
 
+def test_a_command_that_compiles_says_so_once(work, monkeypatch):
+    """A command that compiles kernels (as with a fresh cache: here two functions made anew for
+    each call, compiled inside ``softsim mesh``) says so once, before it compiles; one that
+    compiles nothing does not, and -q silences it."""
+    import numba
+
+    from softsim.cli import mesh as mesh_module
+    from softsim.cli.main import COMPILE_NOTICE
+
+    build_mesh = mesh_module.build_mesh
+
+    def compiling_build_mesh(config):
+        doubled = numba.njit(lambda a: 2.0 * a)
+        tripled = numba.njit(lambda a: 3.0 * a)
+        assert doubled(1.0) + tripled(1.0) == 5.0
+        return build_mesh(config)
+
+    scene = write(work, SCENE)
+    monkeypatch.setattr(mesh_module, "build_mesh", compiling_build_mesh)
+    compiled = ok("mesh", scene, "-o", "first.vtu").stderr
+    assert compiled.count(COMPILE_NOTICE) == 1
+    assert compiled.index(COMPILE_NOTICE) < compiled.index("dihedral")
+    assert COMPILE_NOTICE not in ok("-q", "mesh", scene, "-o", "quiet.vtu").stderr
+    monkeypatch.setattr(mesh_module, "build_mesh", build_mesh)
+    ok("mesh", scene, "-o", "warm.vtu")
+    warm = ok("mesh", scene, "-o", "warm.vtu", "--overwrite").stderr
+    assert COMPILE_NOTICE not in warm and "dihedral" in warm
+
+
+def test_a_line_logged_under_the_progress_bar_goes_above_it(monkeypatch):
+    """A library message while ``softsim run`` shows its bar is written by tqdm, which clears the
+    bar, writes the line and draws the bar again, not onto the end of the bar's line."""
+    import logging
+
+    from softsim.cli.main import _EchoHandler
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    terminal = Terminal()
+    monkeypatch.setattr(sys, "stderr", terminal)
+    logger = logging.getLogger("softsim.test_cli.echo")
+    logger.addHandler(_EchoHandler())
+    logger.propagate = False
+    bar = run_module._progress_bar(40)
+    bar.update(10)
+    bar.refresh()
+    logger.warning("something")
+    bar.close()
+    logger.handlers.clear()
+    assert "warning: something\n" in terminal.getvalue()
+    lines = terminal.getvalue().split("\n")
+    assert any(line.split("\r")[-1].strip() == "warning: something" for line in lines), terminal.getvalue()
+
+
 def test_a_given_dt_above_the_stable_step_is_substepped_refused_or_allowed(work):
     """dt_policy: substep (default) splits the step and says so; refuse gives one line and no
     file; allow uses it with a warning (the guard is then the safety net)."""
@@ -389,7 +454,7 @@ def test_a_given_dt_above_the_stable_step_is_substepped_refused_or_allowed(work)
 
     refused = invoke("run", write(work, SCENE), "-o", "refused.h5", *args, "--set", "time.dt_policy=refuse")
     assert refused.exit_code != 0
-    assert len(refused.stderr.splitlines()) == 1 and "time.dt = 0.01" in refused.stderr
+    assert len(error_lines(refused.stderr)) == 1 and "time.dt = 0.01" in refused.stderr
     assert "stable step" in refused.stderr and not (work / "refused.h5").exists()
 
     allowed = invoke("run", write(work, SCENE), "-o", "allowed.h5", *args, "--set", "time.dt_policy=allow")

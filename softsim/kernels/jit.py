@@ -199,6 +199,31 @@ def _typeof_compile_time_constant(value, context):
     return types.IntegerLiteral(int(value))
 
 
+class _FirstCompileListener(event.Listener):
+    """Calls ``callback()`` when the first compile of a function starts, once."""
+
+    def __init__(self, callback):
+        self.callback = callback
+        self.called = False
+
+    def on_start(self, event):
+        if not self.called:
+            self.called = True
+            self.callback()
+
+    def on_end(self, event):
+        pass
+
+
+@contextlib.contextmanager
+def on_first_compile(callback):
+    """While inside, call ``callback()`` (no arguments) once, as Numba starts compiling the first
+    function its disk cache does not hold; loading machine code from the cache calls nothing.
+    (The CLI's notice that a first run compiles for a while.)"""
+    with event.install_listener("numba:compile", _FirstCompileListener(callback)):
+        yield
+
+
 @contextlib.contextmanager
 def compile_timer():
     """Time Numba spends compiling while inside (not loading machine code from its disk cache):
