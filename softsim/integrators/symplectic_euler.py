@@ -349,9 +349,14 @@ def elastic_vertex_forces(x, blocks, model, lam, mu, vertex_forces, buf):
     (n, ``FORCE_COLUMNS``), zeroed first: the step's blocked kernels (``block_range_forces``), every
     block in order on this thread.  blocks: ``step_arguments``' of a float64 model with the colour
     scatter; buf: ``SCRATCH`` floats starting at a cache line.  (The stable-step estimate's force
-    evaluations, ``stability._SymmetricOperator``.)"""
+    evaluations, ``stability._SymmetricOperator``.)
+
+    The blocks run from the first part's first to the last part's last, typed as ``part_step``
+    passes them (int64, not the literal 0): the step and this function then call one compiled
+    ``block_range_forces``, whose lane loop LLVM optimises once, not once for each."""
     vertex_forces[...] = 0.0
-    block_range_forces(x, None, blocks, 0, blocks[0].shape[0], model, lam, mu, True, vertex_forces,
+    part_offsets = blocks[3]
+    block_range_forces(x, None, blocks, part_offsets[0], part_offsets[-1], model, lam, mu, True, vertex_forces,
                        np.empty((0, 4, 3), dtype=vertex_forces.dtype), buf)
 
 
