@@ -285,6 +285,23 @@ def test_the_scene_and_its_mesh_file_are_never_written_over(tmp_path, monkeypatc
     assert {name: (tmp_path / name).read_bytes() for name in before} == before
 
 
+@pytest.mark.parametrize("overwrite", [False, True])
+def test_mesh_never_writes_an_xdmf_mesh_over_a_run(tmp_path, monkeypatch, overwrite):
+    """meshio writes ``out.xdmf``'s arrays to ``out.h5``: a finished run's file there was replaced
+    by the mesh's 22 kB with --overwrite, and the run's results were lost."""
+    monkeypatch.chdir(tmp_path)
+    scene = write_scene(tmp_path, 0.002)
+    runner = CliRunner()
+    assert runner.invoke(cli, ["run", str(scene)]).exit_code == 0
+    before = (tmp_path / "out.h5").read_bytes()
+    result = runner.invoke(cli, ["mesh", str(scene), "-o", "out.xdmf"] + (["--overwrite"] if overwrite else []))
+    assert result.exit_code == 1
+    assert result.stderr.strip().splitlines() == [
+        "Error: --output = 'out.xdmf': meshio writes an XDMF file's data to 'out.h5', which holds a softsim "
+        "run's results; choose another output name"]
+    assert (tmp_path / "out.h5").read_bytes() == before
+
+
 @pytest.mark.parametrize("output, existing, message", [
     ("bar.vtu", "bar.vtu", "the file exists"),
     # meshio writes bar.xdmf's arrays into bar.h5: a finished run's file of that name was lost to

@@ -217,6 +217,19 @@ def test_export_refuses_to_overwrite_the_run_file(bar, tmp_path):
     assert result.exit_code != 0 and "would replace the run file" in result.output
 
 
+def test_export_never_writes_its_data_over_another_run(bar, cube, tmp_path):
+    """``-o cube.xdmf`` writes its arrays to ``cube.h5``: another run's results, kept even with
+    --overwrite (only a file that is no run's is replaced)."""
+    other = tmp_path / "cube.h5"
+    other.write_bytes(cube.read_bytes())
+    result = run_cli("export", bar, "--format", "xdmf", "-o", other.with_suffix(".xdmf"), "--overwrite", ok=False)
+    assert result.exit_code != 0 and "holds another softsim run's results" in result.output
+    assert other.read_bytes() == cube.read_bytes() and not other.with_suffix(".xdmf").exists()
+    other.write_text("not a run\n")
+    run_cli("export", bar, "--format", "xdmf", "-o", other.with_suffix(".xdmf"), "--overwrite")
+    assert h5py.is_hdf5(other)
+
+
 # ---------------------------------------------------------------------------------------------
 # info and plot
 

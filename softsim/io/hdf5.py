@@ -212,6 +212,16 @@ def _unlock(fd):
         os.close(fd)                # closing drops the lock
 
 
+def holds_run(path):
+    """Whether ``path`` is an HDF5 file that ``softsim run`` wrote (its ``config`` and ``status``
+    attributes), finished or not: a file another command never writes over, ``--overwrite`` or not."""
+    try:
+        with h5py.File(path, "r", locking=False) as f:
+            return "config" in f.attrs and "status" in f.attrs
+    except OSError:
+        return False
+
+
 def _unfinished_status(path):
     """The status of the unfinished softsim run in ``path`` (running, interrupted or failed), or
     None: no such file, no softsim output file, or a complete run."""

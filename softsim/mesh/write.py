@@ -4,14 +4,16 @@ from pathlib import Path
 
 from ..errors import MeshError
 from ..io.files import describe_input, input_clash, with_data_file
-from ..io.hdf5 import being_written
+from ..io.hdf5 import being_written, holds_run
 
 
 def check_mesh_output(output, overwrite=False, inputs=()):
     """Raise ``MeshError`` unless ``write_mesh`` may write ``output`` (checked before meshing):
     its folder exists; neither it nor, for XDMF, the ``.h5`` data file meshio writes beside it is
-    one of ``inputs`` (the scene's own files) or a file a run is writing now; its extension names
-    a format meshio knows; and unless ``overwrite`` neither exists."""
+    one of ``inputs`` (the scene's own files) or a file a run is writing now; the ``.h5`` holds no
+    run's results (``--overwrite`` or not: it names the ``.xdmf``, and meshio replaced a finished
+    run's file unsaid); its extension names a format meshio knows; and unless ``overwrite``
+    neither exists."""
     folder = Path(output).resolve().parent
     if not folder.is_dir():
         raise MeshError(f"--output = '{output}': folder {folder} does not exist")
@@ -27,6 +29,9 @@ def check_mesh_output(output, overwrite=False, inputs=()):
     for file in with_data_file(output):
         if being_written(file):
             raise MeshError(f"--output = '{output}': another run is writing '{file}' now; choose another output name")
+        if file != Path(output) and holds_run(file):
+            raise MeshError(f"--output = '{output}': meshio writes an XDMF file's data to '{file}', which holds a "
+                            f"softsim run's results; choose another output name")
     if not overwrite:
         for file in with_data_file(output):
             if file.exists():

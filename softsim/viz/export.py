@@ -14,6 +14,7 @@ from xml.sax.saxutils import quoteattr
 import numpy as np
 
 from ..io.fields import FIELDS
+from ..io.hdf5 import holds_run
 from .results import ResultsError, open_results
 
 FORMATS = ("vtu", "xdmf")
@@ -119,6 +120,9 @@ def _export_xdmf(meshio, results, selected, output, stem, overwrite):
     data = target.with_suffix(".h5")
     if data.resolve() == results.path.resolve():
         raise ResultsError(f"-o '{target}': its data file {data} would replace the run file; choose another name")
+    if holds_run(data):
+        raise ResultsError(f"-o '{target}': its data file {data} holds another softsim run's results; choose another "
+                           f"name")
     sidecar = results.path.with_suffix(".xdmf")
     if target.resolve() == sidecar.resolve():
         raise ResultsError(f"-o '{target}': is the run's own XDMF file; choose another name")
