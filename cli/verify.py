@@ -9,7 +9,7 @@ from softsim.verify.report import replot_report, verify_report
 
 
 @click.command()
-@click.option("--quick", is_flag=True, help="Short ladders (about a minute on 2 cores).")
+@click.option("--quick", is_flag=True, help="Short ladders (about a minute on 2 cores; the first run compiles for a few more).")
 @click.option("--case", "cases", multiple=True, type=click.Choice(list(CASES)),
               help="Only this case (repeatable; default: all).")
 @click.option("--model", "models", multiple=True, type=click.Choice(MODELS),

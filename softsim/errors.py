@@ -29,8 +29,9 @@ class MissingDependencyError(SoftsimError):
     """An optional Python extra or a system library needed for this command is not installed."""
 
 
-# What installs the plotting and rendering extra (quoted: zsh would glob the brackets).
-PLOT_EXTRA = 'pip install "softsim[plot]"'
+# What installs the plotting and rendering extra (quoted: zsh would glob the brackets).  softsim
+# is installed from its source folder (it is not on PyPI), so the extra is installed from there.
+PLOT_EXTRA = 'pip install ".[plot]" in softsim\'s source folder'
 
 
 class SimulationError(SoftsimError):

@@ -155,7 +155,7 @@ def test_without_matplotlib_the_tables_are_written_and_the_extra_named(tmp_path,
                                       "--scene", "large-dt-refuse", "--model", "linear"])
     assert result.exit_code == 0, result.output
     assert "refused: time.dt" in result.output
-    assert 'pip install "softsim[plot]"' in result.output
+    assert 'pip install ".[plot]"' in result.output
     assert (tmp_path / "bare" / "stability.csv").is_file() and (tmp_path / "bare" / "limits.csv").is_file()
     assert not (tmp_path / "bare" / "stability.png").exists()
 

@@ -337,8 +337,8 @@ def test_without_matplotlib_the_tables_are_written_and_the_extra_named(tmp_path,
 
     monkeypatch.setattr(report_module, "_matplotlib", missing)
     result = verify_report(tmp_path, quick=True, cases=["rigid-motion"], models=["stvk"], threads=1)
-    assert result.plot_paths == {} and 'pip install "softsim[plot]"' in result.plot_note
-    assert result.csv_path.is_file() and "softsim[plot]" in result.summary_path.read_text()
+    assert result.plot_paths == {} and 'pip install ".[plot]"' in result.plot_note
+    assert result.csv_path.is_file() and 'pip install ".[plot]"' in result.summary_path.read_text()
 
 
 def test_a_report_re_renders_from_its_table(report, tmp_path):

@@ -307,13 +307,13 @@ def test_missing_pyvista_or_matplotlib_names_the_extra(bar, tmp_path, monkeypatc
     from softsim.viz.render import render
 
     monkeypatch.setitem(__import__("sys").modules, "pyvista", None)
-    with pytest.raises(MissingDependencyError, match=r'pip install "softsim\[plot\]"'):
+    with pytest.raises(MissingDependencyError, match=r'pip install "\.\[plot\]" in softsim'):
         render(bar, tmp_path / "x.png")
     monkeypatch.setitem(__import__("sys").modules, "matplotlib.figure", None)
-    with pytest.raises(MissingDependencyError, match=r'pip install "softsim\[plot\]"'):
+    with pytest.raises(MissingDependencyError, match=r'pip install "\.\[plot\]" in softsim'):
         plot_history(bar, tmp_path / "x.png")
     result = run_cli("render", bar, "-o", tmp_path / "x.png", ok=False)
-    assert result.exit_code != 0 and "softsim[plot]" in result.output
+    assert result.exit_code != 0 and 'pip install ".[plot]"' in result.output
 
 
 def test_frame_selection(bar):

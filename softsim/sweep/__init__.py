@@ -3,7 +3,7 @@
 ``spec`` reads and validates a sweep file and expands it into runs, each a re-validated scene;
 ``runner`` runs them on a local or remote Dask cluster and writes one HDF5 file per run and a
 summary table; ``metrics`` reads a run's summary row back from its file; ``plot`` draws the table.
-Dask is imported only when runs are submitted (``pip install 'softsim[sweep]'``).
+Dask is imported only when runs are submitted (``pip install ".[sweep]"`` in softsim's folder).
 """
 
 from .metrics import METRIC_COLUMNS, run_metrics, tip_vertices

@@ -48,7 +48,7 @@ def import_distributed():
     except ImportError as exc:
         raise MissingDependencyError(
             f"softsim sweep needs Dask ({exc.name or 'distributed'} is not installed): "
-            f"pip install 'softsim[sweep]'") from None
+            f"pip install \".[sweep]\" in softsim's source folder") from None
     return distributed
 
 
