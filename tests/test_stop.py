@@ -248,6 +248,22 @@ def test_an_unfinished_run_is_not_overwritten_and_resume_is_named(tmp_path, monk
         "continue it or --overwrite to replace it"]
 
 
+def test_a_failed_run_is_not_overwritten_and_its_reason_is_named(tmp_path, monkeypatch):
+    """A run that failed (a blow-up: resuming the same scene fails again) points to --overwrite
+    first, and to --resume only for a failure from outside the run."""
+    monkeypatch.chdir(tmp_path)
+    scene = write_scene(tmp_path, 0.002)
+    with h5py.File(tmp_path / "out.h5", "w") as f:
+        f.attrs["status"] = "failed"
+        f.attrs["status_reason"] = "blew up at t = 0.01 s"
+    again = CliRunner().invoke(cli, ["run", str(scene)])
+    assert again.exit_code == 1
+    assert again.stderr.strip().splitlines() == [
+        "Error: output.path = 'out.h5': the file holds a run that failed (blew up at t = 0.01 s); pass --overwrite "
+        "to replace it (--resume goes on from its last complete frame: only for a failure from outside the run, "
+        "such as a full disk)"]
+
+
 def test_an_existing_xdmf_is_not_overwritten_without_the_flag(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     scene = write_scene(tmp_path, 0.002)

@@ -102,6 +102,10 @@ def check_writable(path, overwrite=True, inputs=()):
     refuse_if_being_written(path)
     if not overwrite:
         unfinished = _unfinished_status(path)
+        if unfinished == "failed":
+            raise SimulationError(f"output.path = '{path}': the file holds a run that failed ({_status_reason(path)}); "
+                                  f"pass --overwrite to replace it (--resume goes on from its last complete frame: "
+                                  f"only for a failure from outside the run, such as a full disk)")
         if unfinished:
             raise SimulationError(f"output.path = '{path}': the file holds an unfinished run (status: "
                                   f"{unfinished}); pass --resume to continue it or --overwrite to replace it")
@@ -220,6 +224,15 @@ def holds_run(path):
             return "config" in f.attrs and "status" in f.attrs
     except OSError:
         return False
+
+
+def _status_reason(path):
+    """The ``status_reason`` a run file records (why it failed), or ``no reason recorded``."""
+    try:
+        with h5py.File(path, "r") as f:
+            return str(f.attrs.get("status_reason", "")) or "no reason recorded"
+    except OSError:
+        return "no reason recorded"
 
 
 def _unfinished_status(path):
