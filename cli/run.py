@@ -81,7 +81,9 @@ def run(scene, output, overwrite, resume, yes, overrides):
     if resume and overwrite:
         raise click.UsageError("--resume and --overwrite exclude each other")
     if resume:
-        check_resumable(scene_config, scene_config.output.path)
+        frames, time = check_resumable(scene_config, scene_config.output.path)
+        log.info("resuming %s from t = %.6g s, its last complete frame (%d kept)", scene_config.output.path, time,
+                 frames)
     else:
         inputs = (scene,) + ((scene_config.mesh.file,) if scene_config.mesh.file else ())
         check_writable(scene_config.output.path, overwrite, inputs)   # before meshing: a bad path costs no work

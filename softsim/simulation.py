@@ -469,7 +469,9 @@ def check_run_cost(prepared, output_path, confirmed=False):
 
 
 def check_resumable(scene, output_path):
-    """Raise ``SimulationError`` unless ``output_path`` holds an unfinished run of this same scene.
+    """Raise ``SimulationError`` unless ``output_path`` holds an unfinished run of this same scene;
+    return ``(frames, time)``: the complete frames it holds and the simulated time [s] of the last,
+    where the run goes on.
 
     The stored ``config`` must equal the scene's (all but ``output.path``): resuming a changed
     scene would splice two different simulations.
@@ -487,6 +489,7 @@ def check_resumable(scene, output_path):
             stored_yaml = str(f.attrs["config"])
             has_state = "state" in f and read_resume_state(f) is not None
             frames = frames_written(f)
+            last_time = float(f["frames/time"][frames - 1]) if frames else 0.0
     except (OSError, KeyError) as exc:
         raise SimulationError(f"--resume: '{output_path}' is not a softsim output file ({exc})") from None
     if status == "complete":
@@ -500,6 +503,7 @@ def check_resumable(scene, output_path):
     if key is not None:
         raise SimulationError(f"--resume: the scene changed since '{output_path}' was written ({key}); "
                               f"resuming it would splice two different runs")
+    return frames, last_time
 
 
 def scene_difference(stored_yaml, scene):

@@ -413,9 +413,13 @@ def test_cli_resume_after_sigterm(tmp_path):
     finally:
         if process.poll() is None:
             process.kill()
+    with h5py.File(out) as f:
+        kept = frames_written(f)
+        last = float(f["frames/time"][kept - 1])
     result = CliRunner().invoke(cli, ["run", str(scene), "-o", str(out), "--resume"])
     if process.returncode == 130:
         assert result.exit_code == 0, result.output
+        assert f"info: resuming {out} from t = {last:.6g} s, its last complete frame ({kept} kept)" in result.stderr
     else:    # the run had already finished before the signal arrived
         assert result.exit_code != 0 and "is complete" in result.stderr
     with h5py.File(out) as f:
