@@ -16,7 +16,7 @@ from click.testing import CliRunner
 
 from softsim.cli.main import cli
 from softsim.config import load_scene
-from softsim.reports.catalogue import MODELS, catalogue
+from softsim.reports.catalogue import MODELS, SCENE_NAMES, catalogue
 from softsim.reports.limits import LimitCase, limit_meshes, measure_limit
 from softsim.reports.stability import COLUMNS, stability_report
 
@@ -136,7 +136,19 @@ def test_the_catalogue_has_every_scene_the_issue_asks_for(tmp_path):
     assert names == ["steel-cantilever", "rubber-nu0.49", "rubber-nu0.499", "crushed-cube", "inverted-squashed",
                      "inverted-mirror", "fast-impact", "sliver-mesh", "large-dt-substep", "large-dt-refuse",
                      "large-dt-allow"]
+    assert names == list(SCENE_NAMES)
     assert MODELS == ("linear", "stvk", "corotated", "neohookean")
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--scene", "crushed"], "unknown catalogue scene crushed (known: crushed-cube,"),
+    (["--model", "rubber"], "Invalid value for '--model': 'rubber'"),
+])
+def test_an_unknown_scene_or_model_writes_nothing(tmp_path, args, message):
+    """Refused before anything is made: a mistyped --scene had left meshes/sliver-beam.vtu."""
+    result = CliRunner().invoke(cli, ["stability", "--quick", "-o", str(tmp_path / "st"), *args])
+    assert result.exit_code != 0 and message in result.output, result.output
+    assert not (tmp_path / "st").exists()
 
 
 def test_the_cli_prints_the_table(tmp_path):

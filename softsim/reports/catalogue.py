@@ -30,6 +30,11 @@ from pathlib import Path
 import numpy as np
 
 MODELS = ("linear", "stvk", "corotated", "neohookean")
+# The names of ``catalogue``'s scenes, in its order: known before it writes a mesh or runs anything
+# (``--scene`` is checked against them first).
+SCENE_NAMES = ("steel-cantilever", "rubber-nu0.49", "rubber-nu0.499", "crushed-cube", "inverted-squashed",
+               "inverted-mirror", "fast-impact", "sliver-mesh", "large-dt-substep", "large-dt-refuse",
+               "large-dt-allow")
 
 STEEL = {"youngs_modulus": 2.0e11, "poissons_ratio": 0.3, "density": 7850.0}
 SOFT = {"youngs_modulus": 1.0e5, "poissons_ratio": 0.3, "density": 1000.0}
@@ -201,4 +206,4 @@ def catalogue(mesh_dir, quick=False):
     return scenes
 
 
-__all__ = ["MODELS", "CatalogueScene", "catalogue", "drift_caveats", "large_dt", "sliver_box", "write_mesh"]
+__all__ = ["MODELS", "SCENE_NAMES", "CatalogueScene", "catalogue", "drift_caveats", "large_dt", "sliver_box", "write_mesh"]

@@ -34,7 +34,7 @@ import numpy as np
 
 from ..errors import PLOT_EXTRA, ConfigError, MissingDependencyError, SoftsimError
 from ..io.hdf5 import frames_written, read_resume_state
-from .catalogue import MODELS, catalogue
+from .catalogue import MODELS, SCENE_NAMES, catalogue
 from .limits import MESH_KINDS, LimitCase, limit_cases, limit_meshes, measure_limit, verdicts
 
 COLUMNS = ("scene", "model", "outcome", "steps", "steps_planned", "dt_s", "max_abs_J_minus_1", "min_J",
@@ -223,6 +223,13 @@ def run_catalogue_scene(entry, model, out_dir):
                         drift, note, wall, str(path), tuple(warnings))
 
 
+def _check_scene_names(scenes):
+    """``ConfigError`` for a name in ``scenes`` (None: all) that is no catalogue scene's."""
+    unknown = [name for name in scenes or () if name not in SCENE_NAMES]
+    if unknown:
+        raise ConfigError(f"unknown catalogue scene {', '.join(unknown)} (known: {', '.join(sorted(SCENE_NAMES))})")
+
+
 def run_catalogue(out_dir, quick=False, scenes=None, models=MODELS, progress=None):
     """Run every catalogue scene (or those named in ``scenes``) for every model in ``models``.
 
@@ -230,12 +237,9 @@ def run_catalogue(out_dir, quick=False, scenes=None, models=MODELS, progress=Non
     ``ConfigError`` for an unknown scene name.
     """
     out_dir = Path(out_dir)
+    _check_scene_names(scenes)
     entries = catalogue(out_dir / "meshes", quick=quick)
     if scenes is not None:
-        known = {entry.name for entry in entries}
-        unknown = [name for name in scenes if name not in known]
-        if unknown:
-            raise ConfigError(f"unknown catalogue scene {', '.join(unknown)} (known: {', '.join(sorted(known))})")
         entries = [entry for entry in entries if entry.name in scenes]
     rows = []
     total = len(entries) * len(models)
@@ -479,11 +483,12 @@ def stability_report(out_dir, quick=False, scenes=None, models=MODELS, cases=Non
     """
     started = _time.perf_counter()
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
     models = tuple(models)
     unknown = [m for m in models if m not in MODELS]
     if unknown:
         raise ConfigError(f"unknown material model {', '.join(unknown)} (known: {', '.join(MODELS)})")
+    _check_scene_names(scenes)
+    out_dir.mkdir(parents=True, exist_ok=True)
     rows = run_catalogue(out_dir, quick=quick, scenes=scenes, models=models, progress=progress)
     csv_path = write_csv(rows, out_dir / "stability.csv")
     if cases is None:
