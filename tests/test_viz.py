@@ -302,6 +302,14 @@ def test_a_foreign_hdf5_file_is_refused(tmp_path):
         open_results(tmp_path / "other.h5")
 
 
+def test_the_energy_sum_says_it_leaves_out_the_contact(bar):
+    from softsim.viz.plot import total_energy_label
+
+    with open_results(bar) as results:
+        assert total_energy_label(results.scene) == "total"
+        assert total_energy_label({**results.scene, "ground": {"height": 0.0}}) == "total (no contact energy)"
+
+
 def test_missing_pyvista_or_matplotlib_names_the_extra(bar, tmp_path, monkeypatch):
     from softsim.viz.plot import plot_history
     from softsim.viz.render import render
