@@ -146,7 +146,7 @@ def test_render_cli_writes_mp4(bar, tmp_path):
     result = run_cli("render", bar, "-o", mp4, "--size", "170x130", "--fps", "5")
     frames = iio.imread(mp4, index=None, plugin="FFMPEG")
     assert frames.shape[0] == 3 and frames.shape[1:3] == (128, 160)     # sides cut to multiples of 16, and said so
-    assert "--size 170x130: the .mp4 is 160x128 (video codecs take sides that are multiples of 16)" in result.output
+    assert "the .mp4 is 160x128 pixels, not 170x130: video codecs take sides that are multiples of 16" in result.output
 
 
 def test_render_refuses_a_gif_faster_than_its_players_play(bar, tmp_path):

@@ -289,8 +289,8 @@ def render(path, output, field=None, frame=None, frames=None, size=(800, 600), f
         if suffix == ".mp4":   # video codecs want sides that are multiples of 16
             fitted = tuple(max(16, 16 * (int(side) // 16)) for side in size)
             if fitted != tuple(size):
-                log.info("--size %dx%d: the .mp4 is %dx%d (video codecs take sides that are multiples of 16)",
-                         *size, *fitted)
+                log.info("the .mp4 is %dx%d pixels, not %dx%d: video codecs take sides that are multiples of 16",
+                         *fitted, *size)
             size = fitted
         renderer = Renderer(results, indices, field, size, view, cmap, show_edges)
         try:
