@@ -236,6 +236,14 @@ def test_unknown_key_suggests_close_name():
     assert "did you mean" not in config_error(with_overrides("ground.zzzzzz=1"))
 
 
+def test_a_top_level_key_inside_a_section_is_pointed_to():
+    """``material.damping``: close to no material key, so no suggestion was made."""
+    assert config_error(with_overrides("material.damping=5")) == (
+        "material.damping: unknown key; 'damping' is a top-level key, not one of this section "
+        "(allowed: model, youngs_modulus, poissons_ratio, density)")
+    assert "'gravity' is a top-level key" in config_error(with_overrides("time.gravity=[0, 0, -1]"))
+
+
 @pytest.mark.parametrize("value", ["yes", "true", "off"])
 def test_booleans_rejected_for_numbers(value):
     assert f"material.density = {'false' if value == 'off' else 'true'}: must be a number" in (
