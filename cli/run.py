@@ -108,7 +108,8 @@ def run(scene, output, overwrite, resume, yes, overrides):
                  f"the cache)" if summary.compile_time_s >= COMPILE_NOTE_S else "")
     steps = f"{summary.steps}" if summary.status == "complete" else f"{summary.step} of {summary.steps}"
     click.echo(f"{summary.path}: {steps} steps, dt {summary.dt:.4g} s, {summary.frames} frames, "
-               f"wall {summary.wall_time_s:.2f} s{compiling}, {summary.tet_steps_per_s / 1e6:.3g} M tet-steps/s")
+               f"wall {summary.wall_time_s:.2f} s{' this session' if resume else ''}{compiling}, "
+               f"{summary.tet_steps_per_s / 1e6:.3g} M tet-steps/s")
     if summary.status == "interrupted":
         click.echo(f"softsim: interrupted at t = {summary.time:.6g} s; {summary.frames} frames kept in "
                    f"{summary.path} (status: interrupted)", err=True)

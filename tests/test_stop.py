@@ -2,6 +2,7 @@
 ``interrupted`` and exit code 130; an existing output file is never silently overwritten."""
 
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -420,6 +421,7 @@ def test_cli_resume_after_sigterm(tmp_path):
     if process.returncode == 130:
         assert result.exit_code == 0, result.output
         assert f"info: resuming {out} from t = {last:.6g} s, its last complete frame ({kept} kept)" in result.stderr
+        assert re.search(r"wall [0-9.]+ s this session", result.stdout), result.stdout
     else:    # the run had already finished before the signal arrived
         assert result.exit_code != 0 and "is complete" in result.stderr
     with h5py.File(out) as f:
