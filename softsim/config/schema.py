@@ -255,15 +255,15 @@ class Section(BaseModel):
             fail("must be a mapping with keys " + ", ".join(allowed))
         for key in data:
             if key not in cls.model_fields:
-                _unknown_key(str(key), allowed, cls.unknown_word, top_level=cls is not Scene)
+                _unknown_key(str(key), allowed, cls.unknown_word, in_section=cls is not Scene)
         return data
 
 
-def _unknown_key(key: str, allowed: list[str], word: str, top_level: bool = False) -> None:
-    """Raise the "unknown key; did you mean ...?" error for ``key``; ``top_level``: the key lies
-    inside a section, so a top-level key of that name is pointed to (``material.damping``)."""
+def _unknown_key(key: str, allowed: list[str], word: str, in_section: bool = False) -> None:
+    """Raise the "unknown key; did you mean ...?" error for ``key``; ``in_section``: the key lies
+    inside a section, where a top-level key of that name is pointed to (``material.damping``)."""
     close = difflib.get_close_matches(key, allowed, n=1)
-    if top_level and key in Scene.model_fields:
+    if in_section and key in Scene.model_fields:
         hint = f"; '{key}' is a top-level key, not one of this section"
     else:
         hint = f"; did you mean '{close[0]}'?" if close else ""
