@@ -211,7 +211,7 @@ def test_the_command_line_does_not_import_dask():
 
 def test_without_dask_the_error_names_the_extra(monkeypatch):
     monkeypatch.setitem(sys.modules, "distributed", None)
-    with pytest.raises(MissingDependencyError, match=r"pip install 'softsim\[sweep\]'"):
+    with pytest.raises(MissingDependencyError, match=r'pip install "\.\[sweep\]" in softsim\'s source folder'):
         import_distributed()
 
 
