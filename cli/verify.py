@@ -47,6 +47,7 @@ def verify(quick, cases, models, precisions, out_dir, threads, replot):
             for line in lines:
                 click.echo(f"  {line}")
     written = [report.csv_path, *report.plot_paths.values(), report.summary_path]
-    click.echo("\nwrote " + ", ".join(str(p) for p in written) + f" ({report.wall_time_s:.0f} s)")
+    took = f"redrawn; the runs took {report.wall_time_s:.0f} s" if replot else f"{report.wall_time_s:.0f} s"
+    click.echo("\nwrote " + ", ".join(str(p) for p in written) + f" ({took})")
     if report.plot_note:
         click.echo(report.plot_note)

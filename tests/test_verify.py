@@ -368,5 +368,6 @@ def test_cli_replot_redraws_from_the_table_without_running(report, tmp_path):
     assert len(list(copy.glob("verify_*.png"))) == len(CASES)
     assert (copy / "verify.csv").read_text() == report.csv_path.read_text()
     assert "Quick run" in (copy / "verify.md").read_text()
+    assert f"(redrawn; the runs took {report.wall_time_s:.0f} s)" in result.output    # not as its own time
     missing = CliRunner().invoke(cli, ["verify", "--replot", "-o", str(tmp_path / "nothing")])
     assert missing.exit_code != 0 and "verify.csv" in missing.output
