@@ -101,14 +101,16 @@ def check_writable(path, overwrite=True, inputs=()):
                               f"{' or '.join(HDF5_SUFFIXES)} (softsim export converts it to VTU or XDMF)")
     refuse_if_being_written(path)
     if not overwrite:
-        unfinished = _unfinished_status(path)
-        if unfinished == "failed":
-            raise SimulationError(f"output.path = '{path}': the file holds a run that failed ({_status_reason(path)}); "
+        attrs = _run_attrs(path)
+        status = attrs.get("status")
+        if status == "failed":
+            reason = attrs.get("status_reason") or "no reason recorded"
+            raise SimulationError(f"output.path = '{path}': the file holds a run that failed ({reason}); "
                                   f"pass --overwrite to replace it (--resume goes on from its last complete frame: "
                                   f"only for a failure from outside the run, such as a full disk)")
-        if unfinished:
+        if status in ("running", "interrupted"):
             raise SimulationError(f"output.path = '{path}': the file holds an unfinished run (status: "
-                                  f"{unfinished}); pass --resume to continue it or --overwrite to replace it")
+                                  f"{status}); pass --resume to continue it or --overwrite to replace it")
         _refuse_if_exists(path)
         if xdmf_path_for(path).exists():
             raise SimulationError(f"output.path = '{path}': the XDMF file {xdmf_path_for(path)} written beside "
@@ -216,34 +218,21 @@ def _unlock(fd):
         os.close(fd)                # closing drops the lock
 
 
+def _run_attrs(path):
+    """The root attributes of the HDF5 file ``path`` that tell what run it holds (``config``,
+    ``status``, ``status_reason``, as str), those it has; empty where there is no such file or it
+    is no HDF5 file."""
+    try:
+        with h5py.File(path, "r", locking=False) as f:
+            return {key: str(f.attrs[key]) for key in ("config", "status", "status_reason") if key in f.attrs}
+    except OSError:
+        return {}
+
+
 def holds_run(path):
     """Whether ``path`` is an HDF5 file that ``softsim run`` wrote (its ``config`` and ``status``
     attributes), finished or not: a file another command never writes over, ``--overwrite`` or not."""
-    try:
-        with h5py.File(path, "r", locking=False) as f:
-            return "config" in f.attrs and "status" in f.attrs
-    except OSError:
-        return False
-
-
-def _status_reason(path):
-    """The ``status_reason`` a run file records (why it failed), or ``no reason recorded``."""
-    try:
-        with h5py.File(path, "r") as f:
-            return str(f.attrs.get("status_reason", "")) or "no reason recorded"
-    except OSError:
-        return "no reason recorded"
-
-
-def _unfinished_status(path):
-    """The status of the unfinished softsim run in ``path`` (running, interrupted or failed), or
-    None: no such file, no softsim output file, or a complete run."""
-    try:
-        with h5py.File(path, "r") as f:
-            status = str(f.attrs.get("status", ""))
-    except OSError:
-        return None
-    return status if status in ("running", "interrupted", "failed") else None
+    return {"config", "status"} <= _run_attrs(path).keys()
 
 
 class RunWriter:
