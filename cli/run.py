@@ -91,7 +91,7 @@ def run(scene, output, overwrite, resume, yes, overrides):
     log.info("mesh: %s", format_quality(prepared.mesh.quality()))
     plan = prepared.plan
     given = "" if prepared.substeps == 1 else f" (time.dt split into {prepared.substeps} sub-steps, dt_policy: substep)"
-    log.info("dt = %.4g s%s, stable step %.4g s, %d steps, %d frames",
+    log.info("dt = %.4g s%s, safe step %.4g s (dt: auto's, below the stability limit), %d steps, %d frames",
              plan.dt, given, prepared.safe_dt, plan.total_steps, len(plan.frame_steps))
     for problem in check_run_cost(prepared, scene_config.output.path, confirmed=yes):
         log.warning("%s (--yes given)", problem)

@@ -125,12 +125,13 @@ def choose_dt(scene, model, dt_estimate):
     dt = float(scene.time.dt)
     if dt <= safe * (1.0 + 1e-9) or scene.time.dt_policy == "allow":
         if dt > safe:
-            log.warning("time.dt = %.4g s is above the stable step %.4g s; dt_policy: allow uses it as given",
-                        dt, safe)
+            log.warning("time.dt = %.4g s is above the safe step %.4g s (dt: auto's, below the stability limit); "
+                        "dt_policy: allow uses it as given", dt, safe)
         return dt, safe, 1
     if scene.time.dt_policy == "refuse":
-        raise ConfigError(f"time.dt = {dt:g}: above the stable step {safe:.4g} s of this mesh and material "
-                          f"(dt_policy: refuse); use a dt <= {safe:.4g}, dt: auto, or dt_policy: substep")
+        raise ConfigError(f"time.dt = {dt:g}: above the safe step {safe:.4g} s of this mesh and material "
+                          f"(dt: auto's, below the stability limit; dt_policy: refuse); use a dt <= {safe:.4g}, "
+                          f"dt: auto, or dt_policy: substep")
     substeps = math.ceil(dt / safe - 1e-9)
     return dt / substeps, safe, substeps
 

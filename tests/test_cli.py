@@ -455,7 +455,7 @@ def test_a_given_dt_above_the_stable_step_is_substepped_refused_or_allowed(work)
     refused = invoke("run", write(work, SCENE), "-o", "refused.h5", *args, "--set", "time.dt_policy=refuse")
     assert refused.exit_code != 0
     assert len(error_lines(refused.stderr)) == 1 and "time.dt = 0.01" in refused.stderr
-    assert "stable step" in refused.stderr and not (work / "refused.h5").exists()
+    assert "above the safe step" in refused.stderr and not (work / "refused.h5").exists()
 
     allowed = invoke("run", write(work, SCENE), "-o", "allowed.h5", *args, "--set", "time.dt_policy=allow")
     warning = [line for line in allowed.stderr.splitlines() if line.startswith("warning:")]

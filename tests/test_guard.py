@@ -167,7 +167,7 @@ def test_refuse_refuses_before_any_output_and_substep_agrees_with_auto(scene, tm
                  time={"duration": 0.1}, output={"frame_interval": 0.01})
     auto = prepare(base)
     given = 0.01                       # one step per frame: far above the stable step
-    with pytest.raises(ConfigError, match=r"time.dt = 0.01: above the stable step"):
+    with pytest.raises(ConfigError, match=r"time.dt = 0.01: above the safe step"):
         prepare(base.model_copy(update={"time": base.time.model_copy(update={"dt": given, "dt_policy": "refuse"})}))
     assert not any(tmp_path.glob("*.h5"))
 
