@@ -430,3 +430,36 @@ def test_a_read_that_fails_half_way_leaves_h5py_to_other_threads(full_run, tmp_p
     child = subprocess.run([sys.executable, "-c", _READ_THEN_ANOTHER_THREAD, str(path), str(full_run[1])],
                            capture_output=True, text=True, timeout=120)
     assert child.stdout.strip() == "other thread done", (child.stdout, child.stderr)
+
+
+def test_frame_rows_written_through_the_low_level_calls_are_the_values_given(tmp_path):
+    """``_write_row`` and ``_write_whole`` (h5py's low-level writes, for speed) store each value's
+    float64 bits in the row or dataset named, whatever the value's dtype, leave every other row as
+    it was, and refuse a value of another shape instead of broadcasting it."""
+    rng = np.random.default_rng(7)
+    with h5py.File(tmp_path / "rows.h5", "w") as f:
+        rows = softsim.io.hdf5._frame_dataset(f, "rows", 5, (4, 3))
+        scalars = softsim.io.hdf5._frame_dataset(f, "scalars", 5, ())
+        rows[...] = -1.0
+        value = rng.standard_normal((4, 3))
+        softsim.io.hdf5._write_row(rows, 2, value)
+        softsim.io.hdf5._write_row(rows, 4, value.astype(np.float32))
+        softsim.io.hdf5._write_row(scalars, 3, np.array([0.1]))        # a length-1 array for a number
+        softsim.io.hdf5._write_row(scalars, 1, 0.25)
+        assert rows[2].tobytes() == value.tobytes()
+        assert rows[4].tobytes() == value.astype(np.float32).astype(np.float64).tobytes()
+        assert np.all(rows[[0, 1, 3]] == -1.0)
+        assert scalars[3] == 0.1 and scalars[1] == 0.25
+        with pytest.raises(ValueError, match="a row of shape"):
+            softsim.io.hdf5._write_row(rows, 0, value.T)
+        with pytest.raises(ValueError, match="a row of shape"):
+            softsim.io.hdf5._write_row(rows, 0, value[0])
+        whole = f.create_dataset("whole", data=np.zeros((4, 3)))
+        softsim.io.hdf5._write_whole(whole, value)
+        assert whole[...].tobytes() == value.tobytes()
+        with pytest.raises(ValueError, match="shape"):
+            softsim.io.hdf5._write_whole(whole, value[:2])
+        header = f.create_dataset("header", data=softsim.io.hdf5._header(0, -1, 0.0, 0.0, 0))
+        record = softsim.io.hdf5._header(3, 17, 0.5, 1.25, 99)
+        softsim.io.hdf5._write_whole(header, record)
+        assert header[()].tobytes() == record.tobytes()
