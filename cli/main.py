@@ -57,8 +57,10 @@ class SoftsimGroup(click.Group):
             if (ctx.meta.get("softsim.verbosity") or 0) > 1:
                 raise
             first_line = (str(exc).strip().splitlines() or [""])[0]
+            again = f"softsim -vv {ctx.invoked_subcommand} ..." if ctx.invoked_subcommand else "softsim -vv ..."
             raise click.ClickException(
-                f"unexpected {type(exc).__name__}: {first_line} (run with -vv for the traceback)") from None
+                f"unexpected {type(exc).__name__}: {first_line} (run '{again}' for the traceback: -vv goes "
+                f"before the command)") from None
 
 
 @click.group(cls=SoftsimGroup, context_settings={"help_option_names": ["-h", "--help"]})

@@ -345,6 +345,23 @@ def test_bad_mesh_output_folder_is_one_line(work):
     assert "no/such/folder/mesh.vtu" in result.stderr
 
 
+def test_a_bug_is_one_line_naming_the_command_that_shows_its_traceback(work, monkeypatch):
+    """An exception that is no ``SoftsimError`` (a bug) prints one line that says how to see the
+    traceback, ``-vv`` placed before the command (``softsim run x.yaml -vv`` is refused by click);
+    with ``-vv`` the exception goes on to the caller."""
+    def broken(*args, **kwargs):
+        raise RuntimeError("boom\nsecond line")
+
+    monkeypatch.setattr(run_module, "load_scene", broken)
+    scene = write(work, SCENE)
+    result = invoke("run", scene)
+    assert result.exit_code == 1
+    assert error_lines(result.stderr) == [
+        "Error: unexpected RuntimeError: boom (run 'softsim -vv run ...' for the traceback: -vv goes before the command)"]
+    verbose = invoke("-vv", "run", scene)
+    assert isinstance(verbose.exception, RuntimeError) and str(verbose.exception) == "boom\nsecond line"
+
+
 def test_console_script_bad_input_is_one_line_without_traceback(tmp_path):
     """The installed ``softsim`` script, in a real process: the user's view of a bad scene."""
     script = Path(sys.executable).with_name("softsim")
