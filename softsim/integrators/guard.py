@@ -203,7 +203,7 @@ class FrameGuard:
             return self.substeps
         self.J_seen[:] = self.J
         self.stretch_seen[:] = self.stretch
-        safe = EIGEN_SAFETY * exact_stable_step(self.model, state.x, iterations=80, tol=1e-2)
+        safe = EIGEN_SAFETY * exact_stable_step(self.model, state.x, iterations=80, tol=1e-2, differences="forward")
         where = self._where(time, state.step)
         if not safe > 0.0:
             raise SimulationError(f"the simulation blew up {where}: its elastic forces are no longer finite; "

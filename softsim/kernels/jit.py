@@ -16,6 +16,7 @@ of the sources of the jitted packages: editing any of them recompiles instead of
 
 import contextlib
 import ctypes
+import functools
 import hashlib
 import importlib.metadata
 import os
@@ -196,7 +197,15 @@ class CompileTimeConstant(int):
 
 @typeof_impl.register(CompileTimeConstant)
 def _typeof_compile_time_constant(value, context):
-    return types.IntegerLiteral(int(value))
+    return _integer_literal(int(value))
+
+
+@functools.cache
+def _integer_literal(value):
+    """Numba's ``IntegerLiteral`` type of ``value``, made once: making one types the value before
+    Numba interns it, about 25 us, which every call of a kernel taking a ``CompileTimeConstant``
+    paid in its dispatch (the guard's stable-step estimate makes two such calls an iteration)."""
+    return types.IntegerLiteral(value)
 
 
 class _FirstCompileListener(event.Listener):
