@@ -496,7 +496,7 @@ def check_resumable(scene, output_path):
         with h5py.File(path, "r") as f:
             status = str(f.attrs.get("status", ""))
             stored_yaml = str(f.attrs["config"])
-            has_state = "state" in f and read_resume_state(f) is not None
+            stored_state = read_resume_state(f) if "state" in f else None
             frames = frames_written(f)
             last_time = float(f["frames/time"][frames - 1]) if frames else 0.0
     except (OSError, KeyError) as exc:
@@ -506,8 +506,12 @@ def check_resumable(scene, output_path):
     if frames == 0:
         raise SimulationError(f"--resume: '{output_path}' has no complete frame to resume from; "
                               f"start the run again with --overwrite")
-    if not has_state:
+    if stored_state is None:
         raise SimulationError(f"--resume: '{output_path}' has no intact state/ to resume from")
+    missing = [name for name in FrameGuard.SNAPSHOT_NAMES if name not in stored_state]
+    if missing:
+        raise SimulationError(f"--resume: '{output_path}' was written by an earlier softsim, whose resume state "
+                              f"lacks {', '.join(missing)}; start the run again with --overwrite")
     key = scene_difference(stored_yaml, scene)
     if key is not None:
         raise SimulationError(f"--resume: the scene changed since '{output_path}' was written ({key}); "

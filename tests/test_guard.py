@@ -6,6 +6,7 @@ holds a non-finite number.
 """
 
 import dataclasses
+import math
 
 import h5py
 import numpy as np
@@ -92,6 +93,46 @@ def test_crushed_cube_stays_stable_because_the_step_is_rechecked(scene, tmp_path
     else:
         with pytest.raises(SimulationError, match="blew up"):
             simulate(prepare(with_dt("allow")), tmp_path / "unchecked.h5")
+
+
+def test_the_guard_looks_again_after_the_change_its_margin_allows(scene, tmp_path, monkeypatch):
+    """``recheck_change``: 5 % of J or stretch where the step is at the sub-steps' limit, more where
+    the last look left a margin m, keeping the step's worst case the same (a tangent stiffness
+    growing as the fourth power of the stretch lets the limit fall by (1 + change)^-2 unseen), at
+    most 25 %.  The crushed neo-Hookean cube at dt: auto looks less often than at a fixed 5 %, and
+    ends where that run ends."""
+    from softsim.integrators import guard
+
+    assert guard.recheck_change(1.0) == pytest.approx(guard.RECHECK_CHANGE)
+    for margin in (1.02, 1.1, 1.2, 1.33):
+        change = guard.recheck_change(margin)
+        assert guard.RECHECK_CHANGE < change < guard.RECHECK_CHANGE_MAX
+        assert (1.0 + change) ** 2 / margin == pytest.approx((1.0 + guard.RECHECK_CHANGE) ** 2)
+    assert guard.recheck_change(4.0) == guard.recheck_change(math.inf) == guard.RECHECK_CHANGE_MAX
+
+    looks = []
+    looked = guard.FrameGuard._substeps
+
+    def recording(self, state, time, moved):
+        substeps = looked(self, state, time, moved)
+        if moved:
+            looks.append((substeps, self.recheck_change))
+        return substeps
+
+    monkeypatch.setattr(guard.FrameGuard, "_substeps", recording)
+    s = crushed_cube(scene, "neohookean")
+    runs = {}
+    for threshold in ("margin", "fixed"):
+        if threshold == "fixed":
+            monkeypatch.setattr(guard, "recheck_change", lambda margin: guard.RECHECK_CHANGE)
+        looks.clear()
+        simulate(prepare(s), tmp_path / f"{threshold}.h5")
+        with h5py.File(tmp_path / f"{threshold}.h5") as f:
+            assert f.attrs["status"] == "complete"
+            runs[threshold] = len(looks), max(change for _, change in looks), f["frames/points"][-1]
+    (margin_looks, largest, x_margin), (fixed_looks, _, x_fixed) = runs["margin"], runs["fixed"]
+    assert largest > guard.RECHECK_CHANGE and margin_looks < fixed_looks
+    np.testing.assert_allclose(x_margin, x_fixed, rtol=0, atol=1e-9)
 
 
 def test_crushed_stvk_cube_is_stopped_by_the_guard(scene, tmp_path):

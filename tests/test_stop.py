@@ -397,6 +397,29 @@ def test_resume_refuses_a_changed_scene_a_complete_run_and_a_missing_file(scene,
         check_resumable(s, tmp_path / "part.h5")
 
 
+def test_resume_refuses_a_file_whose_resume_state_lacks_what_the_guard_now_keeps(scene, tmp_path, monkeypatch):
+    """A run file of an earlier softsim, whose guard kept fewer numbers (here: no
+    ``guard_recheck_change``), cannot go on the same way: refused in one line naming what it lacks,
+    not a failure at its first frame."""
+    from softsim.errors import SimulationError
+    from softsim.integrators.guard import FrameGuard
+    from softsim.model import initial_state
+    from softsim.simulation import check_resumable, prepare, simulate
+
+    s = scene(time={"duration": 0.05}, output={"frame_interval": 0.01})
+    current = FrameGuard.snapshot
+    with monkeypatch.context() as patch:       # the guard of the earlier softsim
+        patch.setattr(FrameGuard, "snapshot",
+                      lambda self: {k: v for k, v in current(self).items() if k != "guard_recheck_change"})
+        simulate(prepare(s), tmp_path / "old.h5", should_stop=_stop_after(2))
+    with pytest.raises(SimulationError, match=r"earlier softsim, whose resume state lacks guard_recheck_change; "
+                                              r"start the run again with --overwrite"):
+        check_resumable(s, tmp_path / "old.h5")
+    model = prepare(s).model
+    guard = FrameGuard(model, 1.0, 1e-4, "substep", initial_state(s, model))
+    assert set(current(guard)) == set(FrameGuard.SNAPSHOT_NAMES)
+
+
 def test_cli_resume_after_sigterm(tmp_path):
     """The README's promise end to end: kill a run with SIGTERM, `--resume` finishes it."""
     scene = write_scene(tmp_path, 0.03)

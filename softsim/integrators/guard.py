@@ -7,7 +7,8 @@ Explicit time stepping is only conditionally stable.  Every frame:
    gradients, rest masses), so deformation changes the stable step only through the material's
    tangent stiffness (neohookean and stvk stiffen where they stretch; a squashed corotated element
    does not need a smaller step).  Whenever any element's J or stretch has moved by more than
-   ``RECHECK_CHANGE`` since the last look, the largest eigenvalue of ``M^-1 K`` is recomputed at
+   ``RECHECK_CHANGE`` since the last look (more where that look left a margin), the largest
+   eigenvalue of ``M^-1 K`` is recomputed at
    the current state (``stability.exact_stable_step``); the run sub-steps, or stops under
    ``dt_policy: refuse``;
 2. positions and velocities must be finite;
@@ -36,8 +37,18 @@ ENERGY_GUARD_FACTOR = 10.0
 # Within a frame, the stable step is re-checked at least every this many planned steps (one pass
 # over the tets, a few percent of the stepping work), so a fast collapse inside a long frame is seen.
 RECHECK_STEPS = 32
-# Relative change of any element's J or stretch that triggers a new eigenvalue estimate.
+# Relative change of any element's J or stretch that triggers a new eigenvalue estimate, while
+# the step is at the sub-steps' limit, EIGEN_SAFETY x 2 / omega_max (and before the first look).
+# A tangent stiffness growing at most as the fourth power of the stretch (neo-Hookean's volume
+# term; StVK's grows as the square) then lets the limit fall by at most (1 + RECHECK_CHANGE)^-2
+# unseen: the step may reach 0.8 x 1.05^2 = 0.88 of the limit.  Where the last look left a margin
+# m = EIGEN_SAFETY x limit / step > 1, the guard keeps that same worst case and looks again only
+# after a change of (1 + RECHECK_CHANGE) sqrt(m) - 1, at most RECHECK_CHANGE_MAX (``FrameGuard.
+# recheck_change``).  dt: auto leaves m >= 1.17 at rest (1.33 where it took the eigenvalue
+# limit): a change of 14-25 %.  A bouncing rubber cube (12.6k tets, 1.5 s) looked 119 times at a
+# fixed 5 %, 8 times with the margin: the looks had cost a third of its run.
 RECHECK_CHANGE = 0.05
+RECHECK_CHANGE_MAX = 0.25
 # Sub-steps are sized to this fraction of the eigenvalue limit 2 / omega_max.
 EIGEN_SAFETY = 0.8
 # A frame may be split into at most this many sub-steps per step before the run is stopped.
@@ -64,6 +75,13 @@ def ground_spring_energy(model, x):
     return float(0.5 * model.ground_stiffness * (np.maximum(-area_z, 0.0) * depth ** 2).sum())
 
 
+def recheck_change(margin):
+    """Relative change of J or stretch after which the guard looks at the stable step again, after a
+    look that left the step ``margin`` = EIGEN_SAFETY x limit / step (>= 1) below its sub-step limit
+    (see ``RECHECK_CHANGE``)."""
+    return min(RECHECK_CHANGE_MAX, max(RECHECK_CHANGE, (1.0 + RECHECK_CHANGE) * math.sqrt(margin) - 1.0))
+
+
 class FrameGuard:
     """Checks a model's state once per frame (``check``) and tracks the energy put in.
 
@@ -81,6 +99,7 @@ class FrameGuard:
         self.J_seen = np.ones(model.tet_count)          # J and stretch at the last eigenvalue look
         self.stretch_seen = np.ones(model.tet_count)
         self.substeps = 1
+        self.recheck_change = RECHECK_CHANGE    # set by each eigenvalue look from its margin (``_substeps``)
         self.x0 = state0.x.copy()
         self.gravity0 = gravity_energy(state0.x, model.mass, model.gravity)
         # a body that starts in the ground is pushed out by its compressed springs: their energy too
@@ -152,17 +171,22 @@ class FrameGuard:
                 f"try a smaller time.dt (this run used {self.dt:.3g} s)")
         return self._substeps(state, time, moved)
 
+    # The names of ``snapshot``'s entries (a run file's resume state holds them).
+    SNAPSHOT_NAMES = ("guard_J_seen", "guard_stretch_seen", "guard_substeps", "guard_recheck_change",
+                      "guard_held_work", "guard_held_power")
+
     def snapshot(self):
         """What a resumed run needs to take the same decisions: dict of arrays and numbers."""
         return {"guard_J_seen": self.J_seen.copy(), "guard_stretch_seen": self.stretch_seen.copy(),
-                "guard_substeps": int(self.substeps), "guard_held_work": float(self.held_work),
-                "guard_held_power": float(self.held_power)}
+                "guard_substeps": int(self.substeps), "guard_recheck_change": float(self.recheck_change),
+                "guard_held_work": float(self.held_work), "guard_held_power": float(self.held_power)}
 
     def restore(self, snapshot):
         """Take back a ``snapshot`` stored with the frame a run resumes from."""
         self.J_seen[:] = snapshot["guard_J_seen"]
         self.stretch_seen[:] = snapshot["guard_stretch_seen"]
         self.substeps = int(snapshot["guard_substeps"])
+        self.recheck_change = float(snapshot["guard_recheck_change"])
         self.held_work = float(snapshot["guard_held_work"])
         self.held_power = float(snapshot["guard_held_power"])
 
@@ -185,14 +209,14 @@ class FrameGuard:
     def _measure_elements(self, x):
         """``self.J`` and ``self.stretch`` of every tet at positions ``x``: in the vectorised blocks
         of the step where their rest data is float64, else tet by tet.  Returns whether any tet
-        moved by more than ``RECHECK_CHANGE`` since the last eigenvalue look (NaN counts as moved)."""
+        moved by more than ``recheck_change`` since the last eigenvalue look (NaN counts as moved)."""
         m = self.model
         if m.blocks.rest.dtype == np.float64:
             return block_volume_ratios_and_stretches(x, m.blocks.tets, m.blocks.rest, m.tet_count, m.blocks.whole_rows,
                                                      self.J, self.stretch, self.J_seen, self.stretch_seen,
-                                                     RECHECK_CHANGE, m.blocks.points_for_rest(m.rest_points))
+                                                     self.recheck_change, m.blocks.points_for_rest(m.rest_points))
         return element_volume_ratios_and_stretches(x, m.tets, m.Dm_inv, self.J, self.stretch, self.J_seen,
-                                                   self.stretch_seen, RECHECK_CHANGE)
+                                                   self.stretch_seen, self.recheck_change)
 
     def _substeps(self, state, time, moved):
         """Sub-steps per planned step at the state whose J and stretch ``self`` holds; ``moved``: whether
@@ -220,4 +244,5 @@ class FrameGuard:
                 raise SimulationError(
                     f"the stable step fell to {safe:.3g} s {where} (most stretched element {self._user_tet(e)}, "
                     f"J = {self.J[e]:.3g}): more than {MAX_SUBSTEPS} sub-steps per step")
+        self.recheck_change = recheck_change(safe / (self.dt / self.substeps))
         return self.substeps
