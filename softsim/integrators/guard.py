@@ -8,9 +8,8 @@ Explicit time stepping is only conditionally stable.  Every frame:
    tangent stiffness (neohookean and stvk stiffen where they stretch; a squashed corotated element
    does not need a smaller step).  Whenever any element's J or stretch has moved by more than
    ``RECHECK_CHANGE`` since the last look (more where that look left a margin), the largest
-   eigenvalue of ``M^-1 K`` is recomputed at
-   the current state (``stability.exact_stable_step``); the run sub-steps, or stops under
-   ``dt_policy: refuse``;
+   eigenvalue of ``M^-1 K`` is recomputed at the current state (``stability.exact_stable_step``);
+   the run sub-steps, or stops under ``dt_policy: refuse``;
 2. positions and velocities must be finite;
 3. the mechanical energy (kinetic + elastic) must stay below ``ENERGY_GUARD_FACTOR`` times what
    could have been put in: its initial value, the energy of the ground's springs where the body
