@@ -38,8 +38,8 @@ benchmark measured the nodal one 1.36x-3.7x above it (its step 1.17x-1.93x below
 deformed states they use Hooke's law on the deformed geometry, which is not the models' tangent
 and not a bound (stretched stvk / neohookean are stiffer).
 
-Cost of ``largest_frequency_squared``: each operator application is two force evaluations;
-10-40 applications were needed on the meshes of ``benchmarks/stable_step_factor.py`` (0.02 s at
+Cost of ``largest_frequency_squared``: each operator application is two force evaluations
+(central differences); 10-40 applications were needed on the meshes of ``benchmarks/stable_step_factor.py`` (0.02 s at
 10k tets, 0.3-1.2 s at 100k tets on 2 cores, with the per-tet kernels).  The blocked kernels took
 a force evaluation of a 90k-tet cube from 3.5 ms (the per-tet kernel on 2 threads and its CSR
 gather) to 0.87 ms (one thread), and the guard's estimate (``iterations=80, tol=1e-2``, 10
@@ -83,7 +83,8 @@ class FrequencyEstimate:
     lambda_max: largest eigenvalue of ``M^-1 K`` [1/s^2] (the Ritz value; see ``converged``).
     residual: ``|A y - lambda_max y|`` of the unit Ritz vector y [1/s^2]; an eigenvalue of A lies
     within it of ``lambda_max``.
-    matvecs: operator applications (each is two force evaluations).
+    matvecs: operator applications (two force evaluations each with central differences, one with
+    forward ones).
     converged: residual <= tol * lambda_max.
     mode: (n, 3) unit eigenvector of the symmetric form (zero on held components).
     """
