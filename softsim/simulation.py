@@ -24,7 +24,7 @@ from .integrators.stability import exact_stable_step, nodal_frequency_bound
 from .integrators.timestep import (AUTO_EIGEN_ITERATIONS, AUTO_EIGEN_MIN_STEPS, AUTO_EIGEN_SAFETY, AUTO_SAFETY,
                                    dilatational_wave_speed, plan_time)
 from .io.hdf5 import (RunWriter, check_writable, frames_written, free_bytes, read_resume_state,
-                      refuse_if_being_written)
+                      refuse_if_being_written, require_resume_names)
 from .kernels.energy import elastic_energy, gravity_energy, kinetic_energy
 from .kernels.fields import tet_fields
 from .kernels.jit import compile_timer, threading_layer
@@ -46,7 +46,8 @@ class Prepared:
     """A scene ready to run: its model, time plan, and stable steps.
 
     dt_estimate: a rigorous lower bound of the stable step at rest [s]; safe_dt: the step
-    ``dt: auto`` would use before fitting it to the frames (``auto_step``) [s]; substeps: how many sub-steps the
+    ``dt: auto`` would use before fitting it to the frames (``auto_step``), or under ``dt: exact``
+    ``EXACT_SAFETY`` x the limit [s]; substeps: how many sub-steps the
     policy split a given dt into; wave_speed: dilatational wave speed [m/s].
     """
 
@@ -334,7 +335,8 @@ def _simulate(prepared, output_path, progress, should_stop, resume, overwrite, c
         writer.compile_time_s = compiled()
 
     if resume:
-        writer, stored = RunWriter.reopen(output_path, fields, frames=len(plan.frame_steps), started=started)
+        writer, stored = RunWriter.reopen(output_path, fields, frames=len(plan.frame_steps), started=started,
+                                          needs=FrameGuard.SNAPSHOT_NAMES)
         state.x[...] = model.from_user_order(stored["positions"])
         state.v[...] = model.from_user_order(stored["velocities"])
         state.step = int(stored["step"])
@@ -508,10 +510,7 @@ def check_resumable(scene, output_path):
                               f"start the run again with --overwrite")
     if stored_state is None:
         raise SimulationError(f"--resume: '{output_path}' has no intact state/ to resume from")
-    missing = [name for name in FrameGuard.SNAPSHOT_NAMES if name not in stored_state]
-    if missing:
-        raise SimulationError(f"--resume: '{output_path}' was written by an earlier softsim, whose resume state "
-                              f"lacks {', '.join(missing)}; start the run again with --overwrite")
+    require_resume_names(output_path, stored_state, FrameGuard.SNAPSHOT_NAMES)
     key = scene_difference(stored_yaml, scene)
     if key is not None:
         raise SimulationError(f"--resume: the scene changed since '{output_path}' was written ({key}); "

@@ -104,6 +104,15 @@ def test_output_path_from_the_scene_is_relative_to_the_working_directory(work, t
         assert f.attrs["status"] == "complete"
 
 
+def test_the_run_line_names_the_safe_step_of_the_dt_asked_for(work):
+    """``dt: auto`` runs at its safe step, below the stability limit; ``dt: exact`` at 0.9x the limit."""
+    scene = write(work, SCENE)
+    auto = ok("run", scene, "-o", "auto.h5")
+    assert re.search(r"safe step \S+ s \(dt: auto's, below the stability limit\)", auto.stderr), auto.stderr
+    exact = ok("run", scene, "-o", "exact.h5", "--set", "time.dt=exact")
+    assert re.search(r"safe step \S+ s \(0.9 x the stability limit\)", exact.stderr), exact.stderr
+
+
 def test_dash_o_overrides_output_path(work):
     ok("run", write(work, SCENE), "-o", "other.h5")
     assert sorted(p.name for p in work.iterdir()) == ["other.h5", "other.xdmf", "scene.yaml"]

@@ -325,14 +325,15 @@ class RunWriter:
         f.flush()
 
     @classmethod
-    def reopen(cls, path, fields=(), xdmf=True, frames=1, started=None):
+    def reopen(cls, path, fields=(), xdmf=True, frames=1, started=None, needs=()):
         """``(writer, state)`` to continue the run in ``path`` from its last complete frame.
 
         ``state`` is a dict of ``state/``: ``positions``, ``velocities`` (n, 3) in the user's order,
         ``time``, ``step`` and any extra arrays and numbers the run stored for a resume.  Rows
         after that state (a frame cut off by a crash) are written over; the datasets get rows for
         ``frames`` frames again; the status is ``running`` again.  started: as for a new writer,
-        this session's start; the stored wall time goes on from it.
+        this session's start; the stored wall time goes on from it.  needs: names the state must
+        hold (``require_resume_names``), checked before anything in the file changes.
         """
         self = cls.__new__(cls)
         self.path = Path(path)
@@ -355,6 +356,12 @@ class RunWriter:
             _unlock(self._lock)
             raise SimulationError(f"--resume: '{path}' holds no intact resume state")
         self._last_slot, state = newest
+        try:
+            require_resume_names(path, state, needs)
+        except SimulationError:
+            self.file.close()
+            _unlock(self._lock)
+            raise
         self.frame_count = int(state["frames"])
         self._started = (_time.perf_counter() if started is None else started) - float(state["wall_time_s"])
         self.compile_time_s = 0.0
@@ -650,6 +657,16 @@ def _newest_slot(f, check_data):
         return None
     _, slot_name, state = max(found, key=lambda item: item[0])
     return slot_name, state
+
+
+def require_resume_names(path, state, needs):
+    """Raise ``SimulationError`` unless the resume ``state`` read from run file ``path`` holds every
+    name of ``needs``: a file of an earlier softsim whose run kept fewer numbers cannot go on the
+    same way."""
+    missing = [name for name in needs if name not in state]
+    if missing:
+        raise SimulationError(f"--resume: '{path}' was written by an earlier softsim, whose resume state "
+                              f"lacks {', '.join(missing)}; start the run again with --overwrite")
 
 
 def read_resume_state(f):
