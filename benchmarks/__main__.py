@@ -61,7 +61,7 @@ def main(argv=None):
         ("threads", lambda: suite.thread_scaling([s for s in sizes if s >= mid] or sizes[-1:], seconds, repeats, threads)),
         ("models", lambda: suite.models(mid, seconds, repeats, threads)),
         ("features", lambda: suite.features(mid, seconds, repeats, threads)),
-        # at the example scenes' frame interval (configs/: 10-20 ms), and at a tenth of it
+        # at the example scenes' frame interval (configs/: 4-20 ms; the cantilever's 10), and at a tenth of it
         ("overhead", lambda: suite.overhead(mid, 2 if quick else 10, threads, 0.01)
                              + suite.overhead(mid, 10 if quick else 50, threads, 0.001)),
         ("memory", lambda: suite.memory(100_000 if quick else 1_000_000, threads)),
