@@ -697,8 +697,13 @@ def wall_time_s(f):
 
 
 def free_bytes(path):
-    """Bytes free for this user on the file system holding ``path`` (statvfs: microseconds)."""
-    return shutil.disk_usage(Path(path).resolve().parent).free
+    """Bytes free for this user on the file system holding ``path``: statvfs of the file itself
+    where it exists (a link leads to the file system of its target), else of its folder.  A frame
+    asks once; resolving the path first took 60 us of its 1-1.4 ms, the statvfs 5."""
+    try:
+        return shutil.disk_usage(path).free
+    except FileNotFoundError:
+        return shutil.disk_usage(Path(path).resolve().parent).free
 
 
 def _os_reason(exc):
