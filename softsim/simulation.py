@@ -481,8 +481,8 @@ def check_run_cost(prepared, output_path, confirmed=False):
 
 def check_resumable(scene, output_path):
     """Raise ``SimulationError`` unless ``output_path`` holds an unfinished run of this same scene;
-    return ``(frames, time)``: the complete frames it holds and the simulated time [s] of the last,
-    where the run goes on.
+    return ``(frames, time)`` of the resume state the run goes on from: the complete frames it
+    keeps and the simulated time [s] of the last.
 
     The stored ``config`` must equal the scene's (all but ``output.path``): resuming a changed
     scene would splice two different simulations.
@@ -500,7 +500,6 @@ def check_resumable(scene, output_path):
             stored_yaml = str(f.attrs["config"])
             stored_state = read_resume_state(f) if "state" in f else None
             frames = frames_written(f)
-            last_time = float(f["frames/time"][frames - 1]) if frames else 0.0
     except (OSError, KeyError) as exc:
         raise SimulationError(f"--resume: '{output_path}' is not a softsim output file ({exc})") from None
     if status == "complete":
@@ -515,7 +514,7 @@ def check_resumable(scene, output_path):
     if key is not None:
         raise SimulationError(f"--resume: the scene changed since '{output_path}' was written ({key}); "
                               f"resuming it would splice two different runs")
-    return frames, last_time
+    return int(stored_state["frames"]), float(stored_state["time"])
 
 
 def scene_difference(stored_yaml, scene):

@@ -140,7 +140,7 @@ class _SymmetricOperator:
         self.f_plus = np.empty_like(self.x)
         self.f_minus = np.empty_like(self.x)
         self.forward = forward
-        self.forces_at_x = False      # forward: f_minus holds the forces at x, from the first application
+        self.f_x = None               # forward: the forces at x, evaluated at the first application
 
     def _forces(self, x, out):
         m = self.model
@@ -154,6 +154,15 @@ class _SymmetricOperator:
         gather_vertex_forces(self.corner, m.csr_offsets, m.csr_slots, out)
         return out
 
+    def _forces_at_x(self):
+        """The forces at ``x``, evaluated once; raises ``_NotFinite`` where they are not finite."""
+        if self.f_x is None:
+            f_x = self._forces(self.x, np.empty_like(self.x))
+            if not np.isfinite(f_x).all():
+                raise _NotFinite
+            self.f_x = f_x
+        return self.f_x
+
     def apply(self, y):
         """``A y`` for ``y`` (n, 3), zero on held components; returns a new (n, 3) array."""
         u = self.scale * y
@@ -161,14 +170,9 @@ class _SymmetricOperator:
         if largest == 0.0:
             return self.diagonal * y
         eps = self.step / largest
-        if self.forward and not self.forces_at_x:
-            self._forces(self.x, self.f_minus)
-            if not np.isfinite(self.f_minus).all():
-                raise _NotFinite
-            self.forces_at_x = True
         self._forces(self.x + eps * u, self.f_plus)
         if self.forward:
-            Ku = (self.f_minus - self.f_plus) / eps
+            Ku = (self._forces_at_x() - self.f_plus) / eps
         else:
             self._forces(self.x - eps * u, self.f_minus)
             Ku = (self.f_minus - self.f_plus) / (2.0 * eps)
