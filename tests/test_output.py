@@ -433,33 +433,45 @@ def test_a_read_that_fails_half_way_leaves_h5py_to_other_threads(full_run, tmp_p
 
 
 def test_frame_rows_written_through_the_low_level_calls_are_the_values_given(tmp_path):
-    """``_write_row`` and ``_write_whole`` (h5py's low-level writes, for speed) store each value's
-    float64 bits in the row or dataset named, whatever the value's dtype, leave every other row as
-    it was, and refuse a value of another shape instead of broadcasting it."""
+    """``_LowLevelDataset`` (h5py's low-level writes, its dataspaces made once, for speed) stores
+    each value's float64 bits in the row or dataset named, whatever the value's dtype, leaves every
+    other row as it was, refuses a value of another shape instead of broadcasting it, and writes
+    the rows a resize added or kept."""
     rng = np.random.default_rng(7)
+    LowLevel = softsim.io.hdf5._LowLevelDataset
     with h5py.File(tmp_path / "rows.h5", "w") as f:
-        rows = softsim.io.hdf5._frame_dataset(f, "rows", 5, (4, 3))
-        scalars = softsim.io.hdf5._frame_dataset(f, "scalars", 5, ())
-        rows[...] = -1.0
+        rows_dataset = softsim.io.hdf5._frame_dataset(f, "rows", 5, (4, 3))
+        rows_dataset[...] = -1.0
+        rows = LowLevel(rows_dataset)
+        scalars = LowLevel(softsim.io.hdf5._frame_dataset(f, "scalars", 5, ()))
         value = rng.standard_normal((4, 3))
-        softsim.io.hdf5._write_row(rows, 2, value)
-        softsim.io.hdf5._write_row(rows, 4, value.astype(np.float32))
-        softsim.io.hdf5._write_row(scalars, 3, np.array([0.1]))        # a length-1 array for a number
-        softsim.io.hdf5._write_row(scalars, 1, 0.25)
-        assert rows[2].tobytes() == value.tobytes()
-        assert rows[4].tobytes() == value.astype(np.float32).astype(np.float64).tobytes()
-        assert np.all(rows[[0, 1, 3]] == -1.0)
-        assert scalars[3] == 0.1 and scalars[1] == 0.25
+        rows.write_row(2, value)
+        rows.write_row(4, value.astype(np.float32))
+        scalars.write_row(3, np.array([0.1]))        # a length-1 array for a number
+        scalars.write_row(1, 0.25)
+        assert rows_dataset[2].tobytes() == value.tobytes()
+        assert rows_dataset[4].tobytes() == value.astype(np.float32).astype(np.float64).tobytes()
+        assert np.all(rows_dataset[[0, 1, 3]] == -1.0)
+        assert f["scalars"][3] == 0.1 and f["scalars"][1] == 0.25
         with pytest.raises(ValueError, match="a row of shape"):
-            softsim.io.hdf5._write_row(rows, 0, value.T)
+            rows.write_row(0, value.T)
         with pytest.raises(ValueError, match="a row of shape"):
-            softsim.io.hdf5._write_row(rows, 0, value[0])
-        whole = f.create_dataset("whole", data=np.zeros((4, 3)))
-        softsim.io.hdf5._write_whole(whole, value)
-        assert whole[...].tobytes() == value.tobytes()
+            rows.write_row(0, value[0])
+        rows.resize(8)                                # grown: the new rows are written where asked
+        rows.write_row(7, 2 * value)
+        assert rows_dataset.shape == rows.shape == (8, 4, 3)
+        assert rows_dataset[7].tobytes() == (2 * value).tobytes() and rows_dataset[2].tobytes() == value.tobytes()
+        rows.resize(3)                                # trimmed
+        rows.write_row(1, 3 * value)
+        assert rows_dataset.shape == (3, 4, 3) and rows_dataset[1].tobytes() == (3 * value).tobytes()
+        with pytest.raises(OSError, match="not within extent"):     # past the end: HDF5 refuses it
+            rows.write_row(4, value)
+        whole = LowLevel(f.create_dataset("whole", data=np.zeros((4, 3))))
+        whole.write_whole(value)
+        assert f["whole"][...].tobytes() == value.tobytes()
         with pytest.raises(ValueError, match="shape"):
-            softsim.io.hdf5._write_whole(whole, value[:2])
-        header = f.create_dataset("header", data=softsim.io.hdf5._header(0, -1, 0.0, 0.0, 0))
+            whole.write_whole(value[:2])
+        header = LowLevel(f.create_dataset("header", data=softsim.io.hdf5._header(0, -1, 0.0, 0.0, 0)))
         record = softsim.io.hdf5._header(3, 17, 0.5, 1.25, 99)
-        softsim.io.hdf5._write_whole(header, record)
-        assert header[()].tobytes() == record.tobytes()
+        header.write_whole(record)
+        assert f["header"][()].tobytes() == record.tobytes()

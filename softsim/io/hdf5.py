@@ -408,33 +408,36 @@ class RunWriter:
 
     def _open_datasets(self):
         """Keep the handles a frame writes through (an h5py lookup by name costs ~50 us)."""
-        self._rows = {dataset.name.removeprefix("/frames/"): dataset for dataset in _frame_datasets(self.file)}
-        self._slots = {name: _members(self.file["state"][name]) for name in STATE_SLOTS}
-        self._scalar_names = list(self._slots[STATE_SLOTS[0]]["scalars"].attrs["names"])
+        self._rows = {dataset.name.removeprefix("/frames/"): _LowLevelDataset(dataset)
+                      for dataset in _frame_datasets(self.file)}
+        self._slots = {name: {member: _LowLevelDataset(dataset)
+                              for member, dataset in _members(self.file["state"][name]).items()}
+                       for name in STATE_SLOTS}
+        self._scalar_names = list(self._slots[STATE_SLOTS[0]]["scalars"].dataset.attrs["names"])
         self._array_names = {name for name in self._slots[STATE_SLOTS[0]] if name not in ("scalars", "header")}
 
     def _write_frame(self, k, time, step, points, velocities, energy, resume_state, fields=None):
         rows = self._rows
         if k >= rows["time"].shape[0]:          # more frames than planned: grow (structure change)
             for dataset in rows.values():
-                dataset.resize(max(2 * k, k + 1), axis=0)
+                dataset.resize(max(2 * k, k + 1))
         template = {"positions": points, "velocities": velocities, **(resume_state or {})}
         if set(template) != self._array_names | set(self._scalar_names):
             raise ValueError(f"resume_state names {sorted(template)} differ from the writer's "
                              f"{sorted(self._array_names | set(self._scalar_names))}")
         crash_point("frame_start", k)
-        _write_row(rows["points"], k, points)
+        rows["points"].write_row(k, points)
         crash_point("after_points", k)
         if "velocities" in self.fields:
-            _write_row(rows["velocities"], k, velocities)
+            rows["velocities"].write_row(k, velocities)
             crash_point("after_velocities", k)
         if "energy" in self.fields:
             for term in ENERGY_TERMS:
-                _write_row(rows[f"energy/{term}"], k, energy[term])
+                rows[f"energy/{term}"].write_row(k, energy[term])
             crash_point("after_energy", k)
         for name, value in (fields or {}).items():
-            _write_row(rows[name], k, value)
-        _write_row(rows["time"], k, time)
+            rows[name].write_row(k, value)
+        rows["time"].write_row(k, time)
         crash_point("after_time", k)
         # The resume state goes to the slot the newest header is not in, so that slot stays intact
         # whatever happens to this one; its header, written after a flush, makes the frame count.
@@ -443,13 +446,13 @@ class RunWriter:
         arrays = {name: template[name] for name in self._array_names}
         scalars = np.array([float(template[name]) for name in self._scalar_names], np.float64)
         for name, value in arrays.items():
-            _write_whole(slot[name], value)
-        _write_whole(slot["scalars"], scalars)
+            slot[name].write_whole(value)
+        slot["scalars"].write_whole(scalars)
         crash_point("before_flush", k)
         self.file.flush()
         crash_point("before_commit", k)
         wall = _time.perf_counter() - self._started
-        _write_whole(slot["header"], _header(k + 1, step, time, wall, state_checksum(arrays, scalars, step)))
+        slot["header"].write_whole(_header(k + 1, step, time, wall, state_checksum(arrays, scalars, step)))
         self.file.flush()
         self._last_slot = slot_name
         self.frame_count = k + 1
@@ -481,7 +484,7 @@ class RunWriter:
         try:
             for dataset in self._rows.values():
                 if dataset.shape[0] != self.frame_count:
-                    dataset.resize(self.frame_count, axis=0)
+                    dataset.resize(self.frame_count)
                     trimmed = True
             crash_point("finish_before_status")
             self.file.attrs.update(status=status, status_reason=reason,
@@ -537,32 +540,51 @@ def _frame_dataset(group, name, frames, row_shape):
     return group[name]
 
 
-def _write_row(dataset, k, value):
-    """``dataset[k] = value`` for a float64 ``frames/*`` dataset, through h5py's low-level calls.
+class _LowLevelDataset:
+    """A ``frames/*`` or ``state/*`` dataset written through h5py's low-level calls, its shape, type
+    and HDF5 dataspaces made once.
 
-    A frame writes 4-15 rows, and ``Dataset.__setitem__`` spends about 0.15 ms a call building its
-    selection in Python: 2-3 ms a frame, more than the step of the small example scenes took.
-    Raises ``ValueError`` where ``value`` (cast to float64, leading axes of length 1 dropped) is
-    not one row's shape."""
-    row_shape = dataset.shape[1:]
-    value = np.asarray(value, dtype=np.float64, order="C")
-    while value.ndim > len(row_shape) and value.shape[0] == 1:
-        value = value.reshape(value.shape[1:])
-    if value.shape != row_shape:
-        raise ValueError(f"{dataset.name}: a row of shape {row_shape}, got {value.shape}")
-    rows = h5py.h5s.create_simple((1, *row_shape))
-    selected = dataset.id.get_space()
-    selected.select_hyperslab((k, *(0 for _ in row_shape)), (1, *row_shape))
-    dataset.id.write(rows, selected, value)
+    A frame writes 8-20 datasets.  ``Dataset.__setitem__`` spends about 0.15 ms a call building its
+    selection in Python (2-3 ms a frame, more than the step of the small example scenes took), and
+    even ``Dataset.shape`` takes 26 us (a new dataspace object each time): at 500 vertices a third
+    of the writer's time went to ``shape`` and to the dataspaces' bookkeeping."""
 
+    def __init__(self, dataset):
+        self.dataset = dataset
+        self.name = dataset.name
+        self.dtype = dataset.dtype
+        self._memory_type = h5py.h5t.py_create(self.dtype)
+        self._read_shape()
 
-def _write_whole(dataset, value):
-    """``dataset[...] = value`` for a dataset of ``value``'s shape, its values cast to the dataset's
-    type (see ``_write_row``)."""
-    value = np.asarray(value, dtype=dataset.dtype, order="C")
-    if value.shape != dataset.shape:
-        raise ValueError(f"{dataset.name}: shape {dataset.shape}, got {value.shape}")
-    dataset.id.write(h5py.h5s.ALL, h5py.h5s.ALL, value)
+    def _read_shape(self):
+        self.shape = self.dataset.shape
+        self._file_space = self.dataset.id.get_space()
+        self._row_space = h5py.h5s.create_simple((1, *self.shape[1:])) if self.shape else None
+
+    def resize(self, rows):
+        """Change the number of rows (axis 0)."""
+        self.dataset.resize(rows, axis=0)
+        self._read_shape()
+
+    def write_row(self, k, value):
+        """``dataset[k] = value`` for a float64 ``frames/*`` dataset.  Raises ``ValueError`` where
+        ``value`` (cast to float64, leading axes of length 1 dropped) is not one row's shape."""
+        row_shape = self.shape[1:]
+        value = np.asarray(value, dtype=np.float64, order="C")
+        while value.ndim > len(row_shape) and value.shape[0] == 1:
+            value = value.reshape(value.shape[1:])
+        if value.shape != row_shape:
+            raise ValueError(f"{self.name}: a row of shape {row_shape}, got {value.shape}")
+        self._file_space.select_hyperslab((k, *(0 for _ in row_shape)), (1, *row_shape))
+        self.dataset.id.write(self._row_space, self._file_space, value, self._memory_type)
+
+    def write_whole(self, value):
+        """``dataset[...] = value`` for a dataset of ``value``'s shape, its values cast to the
+        dataset's type."""
+        value = np.asarray(value, dtype=self.dtype, order="C")
+        if value.shape != self.shape:
+            raise ValueError(f"{self.name}: shape {self.shape}, got {value.shape}")
+        self.dataset.id.write(h5py.h5s.ALL, h5py.h5s.ALL, value, self._memory_type)
 
 
 def _compact(path):
