@@ -266,13 +266,11 @@ def load_scene(path: Union[str, Path], overrides: Iterable[str] = ()) -> Scene:
     return parse_scene(data, base_dir=path.absolute().parent)
 
 
-class _SceneDumper(getattr(yaml, "CSafeDumper", yaml.SafeDumper)):
-    """Block-style mappings, with lists of plain values (vectors, rows) written inline.  Emitted by
-    libyaml where PyYAML has it (the same text; a run writes its scene into the output file, 0.4
-    against 1.9 ms for the cantilever's, and up to 9 ms in a run's first call)."""
+class _SceneDumper(yaml.SafeDumper):
+    """Block-style mappings, with lists of plain values (vectors, rows) written inline."""
 
 
-def _represent_list(dumper: _SceneDumper, items: list) -> yaml.Node:
+def _represent_list(dumper: yaml.SafeDumper, items: list) -> yaml.Node:
     inline = all(not isinstance(item, (list, dict)) for item in items)
     return dumper.represent_sequence("tag:yaml.org,2002:seq", items, flow_style=inline)
 
