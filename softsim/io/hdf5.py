@@ -553,7 +553,7 @@ class _LowLevelDataset:
         self.dataset = dataset
         self.name = dataset.name
         self.dtype = dataset.dtype
-        self._memory_type = h5py.h5t.py_create(self.dtype)
+        self._memory_type = h5py.h5t.py_create(self.dtype)     # of the values write_whole passes
         self._read_shape()
 
     def _read_shape(self):
@@ -567,8 +567,12 @@ class _LowLevelDataset:
         self._read_shape()
 
     def write_row(self, k, value):
-        """``dataset[k] = value`` for a float64 ``frames/*`` dataset.  Raises ``ValueError`` where
-        ``value`` (cast to float64, leading axes of length 1 dropped) is not one row's shape."""
+        """``dataset[k] = value`` for a ``frames/*`` dataset (HDF5 converts the float64 values to
+        its type).  Raises ``ValueError`` where ``value`` (cast to float64, leading axes of length 1
+        dropped) is not one row's shape, ``IndexError`` where row ``k`` does not exist (HDF5 itself
+        need not refuse it)."""
+        if not 0 <= k < self.shape[0]:
+            raise IndexError(f"{self.name}: row {k} of {self.shape[0]}")
         row_shape = self.shape[1:]
         value = np.asarray(value, dtype=np.float64, order="C")
         while value.ndim > len(row_shape) and value.shape[0] == 1:
@@ -576,7 +580,7 @@ class _LowLevelDataset:
         if value.shape != row_shape:
             raise ValueError(f"{self.name}: a row of shape {row_shape}, got {value.shape}")
         self._file_space.select_hyperslab((k, *(0 for _ in row_shape)), (1, *row_shape))
-        self.dataset.id.write(self._row_space, self._file_space, value, self._memory_type)
+        self.dataset.id.write(self._row_space, self._file_space, value, h5py.h5t.NATIVE_DOUBLE)
 
     def write_whole(self, value):
         """``dataset[...] = value`` for a dataset of ``value``'s shape, its values cast to the
