@@ -435,8 +435,9 @@ def test_a_read_that_fails_half_way_leaves_h5py_to_other_threads(full_run, tmp_p
 def test_frame_rows_written_through_the_low_level_calls_are_the_values_given(tmp_path):
     """``_LowLevelDataset`` (h5py's low-level writes, its dataspaces made once, for speed) stores
     each value's float64 bits in the row or dataset named, whatever the value's dtype, leaves every
-    other row as it was, refuses a value of another shape instead of broadcasting it, and writes
-    the rows a resize added or kept."""
+    other row as it was, refuses a value of another shape instead of broadcasting it or a row past
+    the end, writes the rows a resize added or kept, and converts the values for a dataset of
+    another type."""
     rng = np.random.default_rng(7)
     LowLevel = softsim.io.hdf5._LowLevelDataset
     with h5py.File(tmp_path / "rows.h5", "w") as f:
