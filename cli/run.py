@@ -10,7 +10,7 @@ import click
 from softsim.config import load_scene
 from softsim.io.hdf5 import check_writable
 from softsim.mesh import format_quality
-from softsim.simulation import EXACT_SAFETY, check_resumable, check_run_cost, prepare, simulate
+from softsim.simulation import check_resumable, check_run_cost, prepare, safe_step_basis, simulate
 
 from .launch import EXIT_INTERRUPTED
 from .options import scene_argument, set_option
@@ -91,10 +91,8 @@ def run(scene, output, overwrite, resume, yes, overrides):
     log.info("mesh: %s", format_quality(prepared.mesh.quality()))
     plan = prepared.plan
     given = "" if prepared.substeps == 1 else f" (time.dt split into {prepared.substeps} sub-steps, dt_policy: substep)"
-    which = (f"{EXACT_SAFETY:g} x the stability limit" if scene_config.time.dt == "exact"
-             else "dt: auto's, below the stability limit")
-    log.info("dt = %.4g s%s, safe step %.4g s (%s), %d steps, %d frames",
-             plan.dt, given, prepared.safe_dt, which, plan.total_steps, len(plan.frame_steps))
+    log.info("dt = %.4g s%s, safe step %.4g s (%s), %d steps, %d frames", plan.dt, given, prepared.safe_dt,
+             safe_step_basis(scene_config.time), plan.total_steps, len(plan.frame_steps))
     for problem in check_run_cost(prepared, scene_config.output.path, confirmed=yes):
         log.warning("%s (--yes given)", problem)
     bar = _progress_bar(plan.total_steps)

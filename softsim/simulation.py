@@ -109,6 +109,13 @@ def auto_step(model, duration, dt_estimate):
     return max(nodal, AUTO_EIGEN_SAFETY * exact_stable_step(model, iterations=AUTO_EIGEN_ITERATIONS))
 
 
+def safe_step_basis(time):
+    """What ``Prepared.safe_dt`` is for the scene's ``time`` settings, in words for messages."""
+    if time.dt == "exact":
+        return f"{EXACT_SAFETY:g} x the stability limit"
+    return "dt: auto's, below the stability limit"
+
+
 def choose_dt(scene, model, dt_estimate):
     """``(dt_target, safe_dt, substeps)`` [s, s, count] from ``time.dt`` and ``time.dt_policy``.
 
@@ -126,12 +133,12 @@ def choose_dt(scene, model, dt_estimate):
     dt = float(scene.time.dt)
     if dt <= safe * (1.0 + 1e-9) or scene.time.dt_policy == "allow":
         if dt > safe:
-            log.warning("time.dt = %.4g s is above the safe step %.4g s (dt: auto's, below the stability limit); "
-                        "dt_policy: allow uses it as given", dt, safe)
+            log.warning("time.dt = %.4g s is above the safe step %.4g s (%s); dt_policy: allow uses it as given",
+                        dt, safe, safe_step_basis(scene.time))
         return dt, safe, 1
     if scene.time.dt_policy == "refuse":
         raise ConfigError(f"time.dt = {dt:g}: above the safe step {safe:.4g} s of this mesh and material "
-                          f"(dt: auto's, below the stability limit; dt_policy: refuse); use a dt <= {safe:.4g}, "
+                          f"({safe_step_basis(scene.time)}; dt_policy: refuse); use a dt <= {safe:.4g}, "
                           f"dt: auto, or dt_policy: substep")
     substeps = math.ceil(dt / safe - 1e-9)
     return dt / substeps, safe, substeps

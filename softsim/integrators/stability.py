@@ -138,7 +138,7 @@ class _SymmetricOperator:
         self.blocked = _blocked_force_arguments(model)
         self.corner = np.empty((model.tet_count, 4, 3)) if self.blocked is None else None
         self.f_plus = np.empty_like(self.x)
-        self.f_minus = np.empty_like(self.x)
+        self.f_minus = None if forward else np.empty_like(self.x)
         self.forward = forward
         self.f_x = None               # forward: the forces at x, evaluated at the first application
 

@@ -350,18 +350,16 @@ class RunWriter:
         f = self.file
         self.node_count = f["mesh/points"].shape[0]
         self.tet_count = f["mesh/tets"].shape[0]
-        newest = _newest_slot(f, check_data=True)
-        if newest is None:
-            self.file.close()
-            _unlock(self._lock)
-            raise SimulationError(f"--resume: '{path}' holds no intact resume state")
-        self._last_slot, state = newest
         try:
-            require_resume_names(path, state, needs)
+            newest = _newest_slot(f, check_data=True)
+            if newest is None:
+                raise SimulationError(f"--resume: '{path}' holds no intact resume state")
+            require_resume_names(path, newest[1], needs)
         except SimulationError:
             self.file.close()
             _unlock(self._lock)
             raise
+        self._last_slot, state = newest
         self.frame_count = int(state["frames"])
         self._started = (_time.perf_counter() if started is None else started) - float(state["wall_time_s"])
         self.compile_time_s = 0.0
