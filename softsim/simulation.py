@@ -23,7 +23,8 @@ from .integrators.guard import RECHECK_STEPS, FrameGuard, ground_spring_energy
 from .integrators.stability import exact_stable_step, nodal_frequency_bound
 from .integrators.timestep import (AUTO_EIGEN_ITERATIONS, AUTO_EIGEN_MIN_STEPS, AUTO_EIGEN_SAFETY, AUTO_SAFETY,
                                    dilatational_wave_speed, plan_time)
-from .io.hdf5 import (RunWriter, check_writable, frames_written, free_bytes, read_resume_state,
+from .io.files import content_sha256
+from .io.hdf5 import (RUN_ATTRIBUTES, RunWriter, check_writable, frames_written, free_bytes, read_resume_state,
                       refuse_if_being_written, require_resume_names)
 from .kernels.energy import elastic_energy, gravity_energy, kinetic_energy
 from .kernels.fields import tet_fields
@@ -343,7 +344,7 @@ def _simulate(prepared, output_path, progress, should_stop, resume, overwrite, c
 
     if resume:
         writer, stored = RunWriter.reopen(output_path, fields, frames=len(plan.frame_steps), started=started,
-                                          needs=FrameGuard.SNAPSHOT_NAMES)
+                                          needs=FrameGuard.SNAPSHOT_NAMES, mesh=(model.mesh.points, model.mesh.tets))
         state.x[...] = model.from_user_order(stored["positions"])
         state.v[...] = model.from_user_order(stored["velocities"])
         state.step = int(stored["step"])
@@ -353,7 +354,8 @@ def _simulate(prepared, output_path, progress, should_stop, resume, overwrite, c
         check_writable(output_path, overwrite)
         writer = RunWriter(output_path, model.mesh.points, model.mesh.tets, model.to_user_order(model.fixed),
                            scene_to_yaml(scene), plan.dt, plan.total_steps, fields, frames=len(plan.frame_steps),
-                           resume_template=guard.snapshot(), started=started, overwrite=overwrite)
+                           resume_template=guard.snapshot(), started=started, overwrite=overwrite,
+                           attributes=run_sources(model.mesh))
     with writer:
         if not resume:
             substeps = guard.check(state, 0.0)
@@ -477,6 +479,12 @@ def estimate_run(prepared, output_path):
                        output_bytes=int(output_bytes), free_bytes=int(free))
 
 
+def run_sources(mesh):
+    """The root attributes that tell what a run of ``mesh`` (a ``TetMesh``) was made from besides its
+    scene: ``mesh_file_sha256``, the content of a mesh file, for ``run_file_difference``."""
+    return {} if mesh.source_sha256 is None else {"mesh_file_sha256": mesh.source_sha256}
+
+
 def check_run_cost(prepared, output_path, confirmed=False):
     """Raise ``SimulationError`` if the run would take over ``LONG_RUN_S`` or outgrow the free disk,
     unless ``confirmed``; returns the reasons (empty for an ordinary run) for the caller to show."""
@@ -491,11 +499,11 @@ def check_resumable(scene, output_path):
     return ``(frames, time)`` of the resume state the run goes on from: the complete frames it
     keeps and the simulated time [s] of the last.
 
-    The stored ``config`` must equal the scene's (all but ``output.path``): resuming a changed
-    scene would splice two different simulations.
+    The stored ``config`` must equal the scene's (all but ``output.path``), and a mesh file's
+    content the one the run read (``run_file_difference``): resuming a changed scene would splice
+    two different simulations.
     """
     import h5py
-    import yaml
 
     path = Path(output_path)
     if not path.is_file():
@@ -503,13 +511,14 @@ def check_resumable(scene, output_path):
     refuse_if_being_written(output_path, resuming=True)
     try:
         with h5py.File(path, "r") as f:
-            status = str(f.attrs.get("status", ""))
-            stored_yaml = str(f.attrs["config"])
+            stored = {key: str(f.attrs[key]) for key in RUN_ATTRIBUTES if key in f.attrs}
             stored_state = read_resume_state(f) if "state" in f else None
             frames = frames_written(f)
     except (OSError, KeyError) as exc:
         raise SimulationError(f"--resume: '{output_path}' is not a softsim output file ({exc})") from None
-    if status == "complete":
+    if "config" not in stored:
+        raise SimulationError(f"--resume: '{output_path}' is not a softsim output file (it has no config)")
+    if stored.get("status") == "complete":
         raise SimulationError(f"--resume: '{output_path}' is complete; there is nothing to resume")
     if frames == 0:
         raise SimulationError(f"--resume: '{output_path}' has no complete frame to resume from; "
@@ -517,7 +526,7 @@ def check_resumable(scene, output_path):
     if stored_state is None:
         raise SimulationError(f"--resume: '{output_path}' has no intact state/ to resume from")
     require_resume_names(output_path, stored_state, FrameGuard.SNAPSHOT_NAMES)
-    key = scene_difference(stored_yaml, scene)
+    key = run_file_difference(stored, scene)
     if key is not None:
         raise SimulationError(f"--resume: the scene changed since '{output_path}' was written ({key}); "
                               f"resuming it would splice two different runs")
@@ -533,6 +542,24 @@ def scene_difference(stored_yaml, scene):
     for d in (stored, current):
         d.get("output", {}).pop("path", None)
     return None if stored == current else _first_difference(stored, current)
+
+
+def run_file_difference(stored, scene):
+    """``None`` if a run file whose root attributes are ``stored`` (``io.hdf5.RUN_ATTRIBUTES``:
+    ``config`` and, from a mesh file, ``mesh_file_sha256``) was written for ``scene`` as it is now;
+    else the first difference, for messages.  A mesh file's content counts: the scene names the
+    file, not what it holds.  (A file written before softsim stored the hash is taken as matching
+    here; a resume still compares the meshes themselves, ``RunWriter.reopen``.)"""
+    key = scene_difference(stored["config"], scene)
+    if key is None and scene.mesh.shape == "file" and "mesh_file_sha256" in stored:
+        try:
+            now = content_sha256(scene.mesh.file)
+        except OSError as exc:
+            raise ConfigError(f"mesh.file = '{scene.mesh.file}': cannot be read ({exc.strerror or exc})") from None
+        if now != stored["mesh_file_sha256"]:
+            key = (f"mesh.file: the content of '{scene.mesh.file}' changed (SHA-256 "
+                   f"{stored['mesh_file_sha256'][:12]}... -> {now[:12]}...)")
+    return key
 
 
 def _first_difference(a, b, prefix=""):

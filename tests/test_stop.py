@@ -1,6 +1,7 @@
 """Clean stops and output safety: SIGTERM / Ctrl-C end a run after a whole frame with status
 ``interrupted`` and exit code 130; an existing output file is never silently overwritten."""
 
+import hashlib
 import os
 import re
 import signal
@@ -382,6 +383,40 @@ def test_resume_continues_bit_for_bit(scene, tmp_path, model, extra):
         assert set(state_a) == set(state_b)
         for name in set(state_a) - {"wall_time_s"}:     # the guard's numbers too (its re-look threshold, ...)
             assert np.array_equal(state_a[name], state_b[name]), name
+
+
+def test_resume_refuses_a_mesh_file_whose_content_changed(scene, tmp_path):
+    """The scene names a mesh file, not what it holds: a file edited since the run began is
+    refused by the check before meshing (its stored SHA-256) and, for a file written without the
+    hash, by the writer (the stored mesh against the new one); nothing in the file changes."""
+    from softsim.errors import SimulationError
+    from softsim.mesh.generate import structured_box
+    from softsim.simulation import check_resumable, prepare, simulate
+
+    points, tets = structured_box((0.1, 0.1, 0.1), (0.0, 0.0, 0.0), 0.05)
+    mesh_file = tmp_path / "cube.vtu"
+    meshio.write(mesh_file, meshio.Mesh(points, [("tetra", tets)]))
+    cleared = {key: None for key in ("size", "element_size", "structured", "origin")}
+    s = scene(mesh={**cleared, "shape": "file", "file": "cube.vtu"}, time={"duration": 0.05},
+              output={"frame_interval": 0.01})
+    part = tmp_path / "part.h5"
+    simulate(prepare(s), part, should_stop=_stop_after(2))
+    with h5py.File(part) as f:
+        assert f.attrs["mesh_file_sha256"] == hashlib.sha256(mesh_file.read_bytes()).hexdigest()
+    check_resumable(s, part)                                  # unchanged: resumable
+
+    moved = points.copy()
+    moved[0, 0] -= 1e-4                                       # one vertex moved by 0.1 mm
+    meshio.write(mesh_file, meshio.Mesh(moved, [("tetra", tets)]))
+    with pytest.raises(SimulationError, match=r"scene changed .*mesh.file: the content of .*cube.vtu' changed"):
+        check_resumable(s, part)
+    with h5py.File(part, "a") as f:                           # as if written before the hash was stored
+        del f.attrs["mesh_file_sha256"]
+    check_resumable(s, part)
+    before = part.read_bytes()
+    with pytest.raises(SimulationError, match="the mesh differs from the one .* was written with"):
+        simulate(prepare(s), part, resume=True)
+    assert part.read_bytes() == before
 
 
 def test_resume_refuses_a_changed_scene_a_complete_run_and_a_missing_file(scene, tmp_path):

@@ -282,6 +282,26 @@ def test_a_complete_file_of_another_scene_is_not_replaced(tmp_path, client):
     assert len(plan_runs(runs, force=True)[0]) == 1
 
 
+def test_a_complete_run_of_a_mesh_file_that_changed_is_not_taken_as_done(tmp_path, client):
+    """A run of ``shape: file`` is skipped only while the file holds what the run read."""
+    import meshio
+
+    from softsim.mesh.generate import structured_box
+
+    points, tets = structured_box((0.3, 0.1, 0.1), (0.0, -0.05, -0.05), 0.05)
+    meshio.write(tmp_path / "bar.vtu", meshio.Mesh(points, [("tetra", tets)]))
+    base = dict(BAR, mesh={"shape": "file", "file": "bar.vtu"})
+    sweep = {"base": "bar.yaml", "parameters": {"material.youngs_modulus": [1.0e6]}}
+    out = tmp_path / "out"
+    out.mkdir()
+    runs = expand_sweep(load_sweep(write_sweep(tmp_path, sweep, base)), out)
+    run_sweep(runs, out, client)
+    assert plan_runs(runs) == ([], runs)
+    meshio.write(tmp_path / "bar.vtu", meshio.Mesh(2.0 * points, [("tetra", tets)]))
+    with pytest.raises(SimulationError, match=r"mesh.file: the content of .*bar.vtu' changed .*; pass --force"):
+        plan_runs(runs)
+
+
 def test_ctrl_c_cancels_and_keeps_the_summary(tmp_path, client):
     sweep = {"base": "bar.yaml", "parameters": {"material.youngs_modulus": [1e6, 2e6, 3e6, 4e6, 5e6, 6e6]}}
     out = tmp_path / "out"

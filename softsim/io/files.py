@@ -2,6 +2,7 @@
 surprise: meshio keeps an XDMF file's arrays in an HDF5 file of the same stem beside it, so
 writing ``beam.xdmf`` also writes ``beam.h5`` (and reading it reads ``beam.h5``)."""
 
+import hashlib
 from pathlib import Path
 
 XDMF_SUFFIXES = (".xdmf", ".xmf")
@@ -35,3 +36,16 @@ def describe_input(input_file, name):
     if Path(input_file).resolve() == Path(name).resolve():
         return f"'{name}'"
     return f"'{input_file}' (the data of '{name}')"
+
+
+def content_sha256(path):
+    """SHA-256 (hex) of the bytes ``path`` holds, with an XDMF file's ``.h5`` data file beside it
+    (``with_data_file``) where that exists: what a reader of ``path`` gets."""
+    digest = hashlib.sha256()
+    for file in with_data_file(path):
+        if file != Path(path) and not file.is_file():
+            continue
+        with open(file, "rb") as f:
+            for chunk in iter(lambda: f.read(1 << 20), b""):
+                digest.update(chunk)
+    return digest.hexdigest()

@@ -101,7 +101,7 @@ def check_writable(path, overwrite=True, inputs=()):
                               f"{' or '.join(HDF5_SUFFIXES)} (softsim export converts it to VTU or XDMF)")
     refuse_if_being_written(path)
     if not overwrite:
-        attrs = _run_attrs(path)
+        attrs = run_attributes(path)
         status = attrs.get("status")
         if status == "failed":
             reason = attrs.get("status_reason") or "no reason recorded"
@@ -218,13 +218,23 @@ def _unlock(fd):
         os.close(fd)                # closing drops the lock
 
 
-def _run_attrs(path):
-    """The root attributes of the HDF5 file ``path`` that tell what run it holds (``config``,
-    ``status``, ``status_reason``, as str), those it has; empty where there is no such file or it
-    is no HDF5 file."""
+def _same_mesh(f, points, tets):
+    """Whether the open run file ``f`` holds the mesh ``points`` (n, 3), ``tets`` (m, 4), exactly."""
+    stored_points, stored_tets = f["mesh/points"], f["mesh/tets"]
+    return (stored_points.shape == np.shape(points) and stored_tets.shape == np.shape(tets)
+            and np.array_equal(stored_points[()], points) and np.array_equal(stored_tets[()], tets))
+
+
+# The root attributes that tell what run a file holds and what it was made from.
+RUN_ATTRIBUTES = ("config", "status", "status_reason", "mesh_file_sha256")
+
+
+def run_attributes(path):
+    """The root attributes of the HDF5 file ``path`` that tell what run it holds (``RUN_ATTRIBUTES``,
+    as str), those it has; empty where there is no such file or it is no HDF5 file."""
     try:
         with h5py.File(path, "r", locking=False) as f:
-            return {key: str(f.attrs[key]) for key in ("config", "status", "status_reason") if key in f.attrs}
+            return {key: str(f.attrs[key]) for key in RUN_ATTRIBUTES if key in f.attrs}
     except OSError:
         return {}
 
@@ -232,7 +242,7 @@ def _run_attrs(path):
 def holds_run(path):
     """Whether ``path`` is an HDF5 file that ``softsim run`` wrote (its ``config`` and ``status``
     attributes), finished or not: a file another command never writes over, ``--overwrite`` or not."""
-    return {"config", "status"} <= _run_attrs(path).keys()
+    return {"config", "status"} <= run_attributes(path).keys()
 
 
 class RunWriter:
@@ -249,10 +259,11 @@ class RunWriter:
     ``compile_time_s``) is counted in ``wall_time_s`` too.
     overwrite: whether the file may replace one at ``path``, checked as it is renamed into place
     (``_move_into_place``); a file another run is writing is never replaced.
+    attributes: further root attributes that tell what the run was made from (``mesh_file_sha256``).
     """
 
     def __init__(self, path, points, tets, fixed, config_yaml, dt, steps, fields=(), xdmf=True, frames=1,
-                 resume_template=None, started=None, overwrite=True):
+                 resume_template=None, started=None, overwrite=True, attributes=None):
         self.path = Path(path)
         self.fields = tuple(fields)
         self.node_count = points.shape[0]
@@ -274,7 +285,7 @@ class RunWriter:
         self._lock = _lock_unless_locked(partial)
         try:
             self._create_layout(points, tets, fixed, config_yaml, dt, steps, max(1, int(frames)),
-                                resume_template or {})
+                                resume_template or {}, attributes or {})
             _keep_metadata_until_flush(self.file)
             crash_point("before_rename")
             _move_into_place(partial, self.path, overwrite)
@@ -287,12 +298,12 @@ class RunWriter:
                 raise SimulationError(f"output.path = '{path}': cannot write the file ({_os_reason(exc)})") from None
             raise
 
-    def _create_layout(self, points, tets, fixed, config_yaml, dt, steps, frames, resume_template):
+    def _create_layout(self, points, tets, fixed, config_yaml, dt, steps, frames, resume_template, attributes):
         """Write the mesh, the attributes, the frame datasets (``frames`` rows, allocated) and the
         state slots, then flush."""
         f = self.file
         f.attrs.update(config=config_yaml, dt=float(dt), steps=int(steps), wall_time_s=0.0, compile_time_s=0.0,
-                       softsim_version=__version__, status="running", status_reason="")
+                       softsim_version=__version__, status="running", status_reason="", **attributes)
         mesh = f.create_group("mesh")
         mesh.create_dataset("points", data=np.asarray(points, np.float64))
         mesh.create_dataset("tets", data=np.asarray(tets, np.int64))
@@ -325,7 +336,7 @@ class RunWriter:
         f.flush()
 
     @classmethod
-    def reopen(cls, path, fields=(), xdmf=True, frames=1, started=None, needs=()):
+    def reopen(cls, path, fields=(), xdmf=True, frames=1, started=None, needs=(), mesh=None):
         """``(writer, state)`` to continue the run in ``path`` from its last complete frame.
 
         ``state`` is a dict of ``state/``: ``positions``, ``velocities`` (n, 3) in the user's order,
@@ -333,7 +344,9 @@ class RunWriter:
         after that state (a frame cut off by a crash) are written over; the datasets get rows for
         ``frames`` frames again; the status is ``running`` again.  started: as for a new writer,
         this session's start; the stored wall time goes on from it.  needs: names the state must
-        hold (``require_resume_names``), checked before anything in the file changes.
+        hold (``require_resume_names``), checked before anything in the file changes.  mesh:
+        ``(points, tets)`` of the run going on, in the user's order, refused unless equal to the
+        file's ``mesh/`` (a mesh file edited, or gmsh meshing the scene otherwise, since).
         """
         self = cls.__new__(cls)
         self.path = Path(path)
@@ -355,6 +368,10 @@ class RunWriter:
             if newest is None:
                 raise SimulationError(f"--resume: '{path}' holds no intact resume state")
             require_resume_names(path, newest[1], needs)
+            if mesh is not None and not _same_mesh(f, *mesh):
+                raise SimulationError(f"--resume: the mesh differs from the one '{path}' was written with (its "
+                                      f"file edited, or meshed by another gmsh since); resuming it would splice two "
+                                      f"different runs")
         except SimulationError:
             self.file.close()
             _unlock(self._lock)

@@ -1,5 +1,6 @@
 """Mesh stage: a checked, positively oriented tetrahedral mesh from a scene's ``mesh`` section."""
 
+import dataclasses
 import logging
 import math
 from dataclasses import dataclass
@@ -8,6 +9,7 @@ from typing import Optional
 import numpy as np
 
 from ..errors import MeshError
+from ..io.files import content_sha256
 from .checks import boundary_face_slots, check_not_degenerate, orient_positively
 from .quality import format_quality, quality_summary
 
@@ -21,6 +23,8 @@ class TetMesh:
     points: (node_count, 3) rest positions [m], float64.
     tets: (tet_count, 4) vertex indices, int64, every rest volume positive.
     source: where it came from (shape name or file path), for messages.
+    source_sha256: for a mesh file, the SHA-256 of its content when it was read (``io.files.content_sha256``),
+    stored in a run file so that a resume or a sweep notices a file that changed since; else None.
     boundary_slots: None, or the boundary faces as face slots ``4 e + k`` of ``tets``
     (``checks.boundary_face_slots``), found when the mesh was checked: the model reuses them.
     """
@@ -29,6 +33,7 @@ class TetMesh:
     tets: np.ndarray
     source: str
     boundary_slots: Optional[np.ndarray] = None
+    source_sha256: Optional[str] = None
 
     @property
     def node_count(self):
@@ -135,9 +140,13 @@ def checked_mesh(points, tets, source):
 
 def build_mesh(spec):
     """The checked ``TetMesh`` of a scene's ``mesh`` section."""
-    source = f"mesh.file = '{spec.file}'" if spec.shape == "file" else f"mesh.shape = {spec.shape}"
-    points, tets = raw_tetrahedra(spec)
-    return checked_mesh(points, tets, source)
+    if spec.shape != "file":
+        return checked_mesh(*raw_tetrahedra(spec), f"mesh.shape = {spec.shape}")
+    # Hashed before it is read: a file changed in between then differs from its stored hash later
+    # (a resume refused), never the other way round (a changed mesh taken for the one run before).
+    digest = content_sha256(spec.file)
+    checked = checked_mesh(*raw_tetrahedra(spec), f"mesh.file = '{spec.file}'")
+    return dataclasses.replace(checked, source_sha256=digest)
 
 
 __all__ = ["TetMesh", "build_mesh", "checked_mesh", "raw_tetrahedra", "format_quality"]

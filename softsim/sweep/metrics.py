@@ -115,21 +115,3 @@ def run_metrics(path):
     else:
         row.update(tip_x=math.nan, tip_y=math.nan, tip_z=math.nan, tip_displacement=math.nan, tip_dz=math.nan)
     return {column: row[column] for column in METRIC_COLUMNS}
-
-
-def stored_config_yaml(path):
-    """The scene stored in the run file ``path`` (its ``config`` YAML text), or None if unreadable."""
-    try:
-        with h5py.File(path, "r") as f:
-            return str(f.attrs["config"])
-    except (OSError, KeyError):
-        return None
-
-
-def stored_status(path):
-    """The ``status`` attribute of the run file ``path``, or None if it cannot be read."""
-    try:
-        with h5py.File(path, "r") as f:
-            return str(f.attrs.get("status", ""))
-    except OSError:
-        return None

@@ -29,7 +29,7 @@ from typing import Callable, Optional
 
 from ..errors import MissingDependencyError, SimulationError, SoftsimError
 from ..io.hdf5 import xdmf_path_for
-from .metrics import METRIC_COLUMNS, run_metrics, stored_config_yaml, stored_status
+from .metrics import METRIC_COLUMNS, run_metrics
 from .spec import Run
 
 log = logging.getLogger("softsim")
@@ -155,7 +155,8 @@ def plan_runs(runs, force=False):
     """
     import yaml
 
-    from ..simulation import scene_difference
+    from ..io.hdf5 import run_attributes
+    from ..simulation import run_file_difference
 
     to_run, to_skip = [], []
     for run in runs:
@@ -165,16 +166,16 @@ def plan_runs(runs, force=False):
             continue
         if path.is_dir():
             raise SimulationError(f"run {run.index + 1} ({run.name}): {path} is a directory")
-        status = stored_status(path)
-        stored = stored_config_yaml(path)
-        if status is None or stored is None:
+        stored = run_attributes(path)
+        status = stored.get("status")
+        if status is None or "config" not in stored:
             raise SimulationError(f"run {run.index + 1} ({run.name}): {path} exists and is not a softsim run "
                                   f"file; pass --force to replace it or choose another output folder")
         if status != "complete":
             to_run.append(run)
             continue
         try:
-            difference = scene_difference(stored, run.scene)
+            difference = run_file_difference(stored, run.scene)
         except (yaml.YAMLError, AttributeError):      # not a mapping: not a scene softsim wrote
             difference = "config: not a scene"
         if difference is not None:
