@@ -171,6 +171,15 @@ def test_frozen():
          "fixed[0].axes = ['x', 'x']: must be a non-empty list of distinct items from x, y, z"),
         ("fixed=[{min: [0, 0, 0], max: [1, 1, 1], axes: []}]", "fixed[0].axes = []: must be"),
         ("fixed={min: [0, 0, 0]}", "fixed = {'min': [0, 0, 0]}: must be a list"),
+        ("fixed=[{min: [0, 0, 0], max: [1, 1, 1], axes: [x], velocity: [0, 1.0, 0]}]",
+         "fixed[0].velocity = [0.0, 1.0, 0.0]: non-zero along y, which axes: [x] does not hold"),
+        ("fixed=[{min: [0, 0, 0], max: [1, 1, 1], axes: [z, x], velocity: [1, 2, 3]}]",
+         "fixed[0].velocity = [1.0, 2.0, 3.0]: non-zero along y, which axes: [z, x] does not hold"),
+        ("initial_deformation.matrix=[[-1, 0, 0], [0, 1, 0], [0, 0, 1]]",
+         "initial_deformation.matrix = [[-1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]: det = -1 turns "
+         "inside out every element, which material.model stvk cannot recover from; use neohookean or corotated"),
+        ("initial_deformation.matrix=[[0, 0, 0], [0, 1, 0], [0, 0, 1]]",
+         "initial_deformation.matrix = [[0.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]: det = 0 flattens"),
         ("tractions=[{min: [0, 0, 0], max: [1, 1, 1]}]", "tractions[0].traction: required key"),
         ("ground.stiffness=0", "ground.stiffness = 0: must be greater than 0"),
         ("ground.friction=-0.1", "ground.friction = -0.1: must be at least 0"),
@@ -183,6 +192,16 @@ def test_frozen():
 )
 def test_bad_values_name_key_value_and_rule(override, expected):
     assert expected in config_error(with_overrides(override))
+
+
+def test_held_velocities_and_inverting_starts_that_are_allowed():
+    """A velocity along held axes only, and a mirror start for the models that recover from one."""
+    held = parse_scene(with_overrides("fixed=[{min: [0, 0, 0], max: [1, 1, 1], axes: [x, z], velocity: [1, 0, 2]}]"))
+    assert held.fixed[0].velocity == (1.0, 0.0, 2.0)
+    for model in ("neohookean", "corotated"):
+        mirrored = parse_scene(with_overrides(f"material.model={model}",
+                                              "initial_deformation.matrix=[[-1, 0, 0], [0, 1, 0], [0, 0, 1]]"))
+        assert mirrored.initial_deformation.matrix[0] == (-1.0, 0.0, 0.0)
 
 
 @pytest.mark.parametrize(

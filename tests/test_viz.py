@@ -352,3 +352,26 @@ def test_info_of_a_killed_run_shows_the_wall_time_of_its_last_frame(tmp_path):
     summary = summarize(tmp_path / "killed.h5")
     assert summary["status"] == "running" and summary["frames"] == 2
     assert summary["wall_time_s"] >= 0.05
+
+
+def test_a_run_that_failed_before_its_first_frame_shows_its_status_and_reason(tmp_path):
+    """``info`` shows a frameless file's status and reason; the commands that need frames name them."""
+    from softsim.io.hdf5 import RunWriter
+
+    rng = np.random.default_rng(2)
+    points, tets = rng.random((4, 3)), np.array([[0, 1, 2, 3]])
+    reason = "element 0 inverted (J = -1) at t = 0 s (step 0)"
+    writer = RunWriter(tmp_path / "failed.h5", points, tets, np.zeros(4, bool), "{}", 1e-3, 10,
+                       fields=("velocities", "energy"), frames=10)
+    writer.finish("failed", reason)
+    summary = json.loads(run_cli("info", tmp_path / "failed.h5", "--json").output)
+    assert (summary["status"], summary["status_reason"], summary["frames"], summary["time"]) == (
+        "failed", reason, 0, None)
+    assert summary["fields"]["velocities"]["min"] is None and summary["fields"]["energy/kinetic"]["max"] is None
+    text = run_cli("info", tmp_path / "failed.h5").output
+    assert f"status   failed ({reason})" in text and "frames   none" in text
+    for args in (["plot", "-o", tmp_path / "p.png"], ["export", "--format", "vtu", "-o", tmp_path / "vtu"],
+                 ["render", "-o", tmp_path / "r.png"]):
+        result = run_cli(args[0], tmp_path / "failed.h5", *args[1:], ok=False)
+        assert result.exit_code == 1
+        assert result.output.strip() == f"Error: '{tmp_path / 'failed.h5'}': holds no frames (status: failed, {reason})"

@@ -35,6 +35,8 @@ DT_POLICIES = ("substep", "refuse", "allow")
 PRECISIONS = ("float64", "float32")
 # Models with a float32 step: those with a displacement form (materials.models.DISPLACEMENT_FORM_MODELS).
 FLOAT32_MODELS = ("linear", "stvk", "neohookean")
+# Models that push an inverted element back (materials.models.INVERSION_SAFE); the guard stops the others.
+INVERSION_SAFE_MODELS = ("corotated", "neohookean")
 # The optional per-frame fields (softsim/io/fields.py says where each lives, its shape and unit).
 OUTPUT_FIELDS = ("velocities", "energy", "displacement", "speed", "strain", "stress", "pressure",
                  "deviatoric_stress", "von_mises", "J")
@@ -367,6 +369,15 @@ class FixedRegion(_Region):
         (0.0, 0.0, 0.0), description="prescribed velocity [m/s] of the constrained components"
     )
 
+    @model_validator(mode="after")
+    def _check_velocity_axes(self) -> "FixedRegion":
+        """No velocity along an axis the region does not hold (it would be ignored)."""
+        free = [axis for axis, speed in zip("xyz", self.velocity) if speed != 0.0 and axis not in self.axes]
+        if free:
+            fail(f"non-zero along {', '.join(free)}, which axes: [{', '.join(self.axes)}] does not hold "
+                 f"(a velocity is prescribed only along held axes)", key="velocity", value=list(self.velocity))
+        return self
+
 
 class TractionRegion(_Region):
     """Boundary faces inside the box carry a constant surface traction."""
@@ -461,6 +472,20 @@ class Scene(Section):
         if self.precision == "float32" and self.material.model not in FLOAT32_MODELS:
             fail(f"material.model {self.material.model} steps in float64 only; float32 is available for "
                  f"{', '.join(FLOAT32_MODELS)}", key="precision", value=self.precision)
+        return self
+
+    @model_validator(mode="after")
+    def _check_initial_orientation(self) -> "Scene":
+        """linear and stvk cannot start from an initial map that turns every element inside out or
+        flat (det <= 0): the guard, which stops them at any inverted element, would stop the run
+        at its first frame."""
+        (a, b, c), (d, e, f), (g, h, i) = self.initial_deformation.matrix
+        det = a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
+        if det <= 0.0 and self.material.model not in INVERSION_SAFE_MODELS:
+            what = "flattens" if det == 0.0 else "turns inside out"
+            fail(f"det = {det:.3g} {what} every element, which material.model {self.material.model} cannot "
+                 f"recover from; use neohookean or corotated", key="initial_deformation.matrix",
+                 value=[list(row) for row in self.initial_deformation.matrix])
         return self
 
 

@@ -184,8 +184,12 @@ def run_catalogue_scene(entry, model, out_dir):
     """Run catalogue scene ``entry`` with material ``model`` into ``out_dir/runs``; a ``CatalogueRow``.
 
     Its scene file goes to ``out_dir/scenes/<scene>-<model>.yaml`` first (``output.path`` there is
-    ``<scene>-<model>.h5``, relative to where the user reruns it).
+    ``<scene>-<model>.h5``, relative to where the user reruns it); a scene the schema refuses (an
+    inverted start for a model that cannot recover from one) is written as given, and its row
+    says ``refused``.
     """
+    import yaml
+
     from ..config import parse_scene, scene_to_yaml
     from ..simulation import prepare, simulate
 
@@ -193,15 +197,21 @@ def run_catalogue_scene(entry, model, out_dir):
     name = f"{entry.name}-{model}"
     data = entry.scene_data(model)
     data["output"] = {**data.get("output", {}), "path": f"{name}.h5"}
-    scene = parse_scene(data)
     (out_dir / "scenes").mkdir(parents=True, exist_ok=True)
-    (out_dir / "scenes" / f"{name}.yaml").write_text(scene_to_yaml(scene))
+    scene_file = out_dir / "scenes" / f"{name}.yaml"
+    note = ", ".join(entry.drift_caveats)
+    try:
+        scene = parse_scene(data)
+    except ConfigError as exc:
+        scene_file.write_text(yaml.safe_dump(data, sort_keys=False))
+        return CatalogueRow(entry.name, model, f"refused: {_one_line(exc)}", 0, 0, None, None, None, None,
+                            None, note, 0.0, None, ())
+    scene_file.write_text(scene_to_yaml(scene))
     path = out_dir / "runs" / f"{name}.h5"
     path.parent.mkdir(parents=True, exist_ok=True)
     path.unlink(missing_ok=True)                      # no stale file from an earlier report
     path.with_suffix(".xdmf").unlink(missing_ok=True)
     scene = scene.model_copy(update={"output": scene.output.model_copy(update={"path": str(path)})})
-    note = ", ".join(entry.drift_caveats)
     started = _time.perf_counter()
     with _captured_warnings() as warnings:
         try:

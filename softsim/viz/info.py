@@ -12,10 +12,10 @@ def summarize(path):
 
     Keys: path, scene (mesh shape, material model, E [Pa], nu, density [kg/m^3], ground), tets,
     vertices, status, status_reason, steps, dt [s], wall_time_s, frames, time [s] (simulated time
-    reached), duration [s] (planned), softsim_version, and fields: ``{name: {location, shape, unit,
+    reached; None without a frame), duration [s] (planned), softsim_version, and fields: ``{name: {location, shape, unit,
     min, max}}`` with min / max over every frame (and every component) of each stored field.
     """
-    with open_results(path) as results:
+    with open_results(path, allow_empty=True) as results:
         attrs, scene = results.attrs, results.scene
         mesh, material = scene.get("mesh", {}) or {}, scene.get("material", {}) or {}
         summary = {
@@ -36,7 +36,7 @@ def summarize(path):
             "dt": attrs.get("dt"),
             "wall_time_s": wall_time_s(results.file),
             "frames": results.frame_count,
-            "time": float(results.times[-1]),
+            "time": float(results.times[-1]) if results.frame_count else None,
             "duration": (scene.get("time", {}) or {}).get("duration"),
             "softsim_version": attrs.get("softsim_version"),
             "fields": {},
@@ -51,9 +51,12 @@ def summarize(path):
 
 
 def _range(results, dataset):
-    """(min, max) over the frames counted by ``io.hdf5.frames_written``, read one frame at a time."""
+    """(min, max) over the frames counted by ``io.hdf5.frames_written``, read one frame at a time;
+    (None, None) without a frame."""
     data = results.file["frames"][dataset]
     k = results.frame_count
+    if k == 0:
+        return None, None
     if data.ndim == 1:
         values = data[:k]
         return float(values.min()), float(values.max())
@@ -77,7 +80,8 @@ def format_summary(summary):
         ("mesh", f"{summary['tets']} tets, {summary['vertices']} vertices"),
         ("status", status),
         ("steps", f"{summary['steps']} of dt = {summary['dt']:.4g} s, wall time {summary['wall_time_s']:.3g} s"),
-        ("frames", f"{summary['frames']}, simulated time reached {summary['time']:.6g} s{duration}"),
+        ("frames", f"{summary['frames']}, simulated time reached {summary['time']:.6g} s{duration}"
+                   if summary["frames"] else "none"),
     ]
     lines = [f"{key:<8} {value}" for key, value in rows]
     if summary["fields"]:
@@ -85,7 +89,8 @@ def format_summary(summary):
         for name, info in summary["fields"].items():
             shape = "x".join(str(d) for d in info["shape"])
             where = info["location"] + (f" {shape}" if shape else "")
-            lines.append(f"         {name:<27} {where:<8} {info['unit']:<5} {info['min']:>12.4g} {info['max']:>12.4g}")
+            lo, hi = ("-", "-") if info["min"] is None else (f"{info['min']:.4g}", f"{info['max']:.4g}")
+            lines.append(f"         {name:<27} {where:<8} {info['unit']:<5} {lo:>12} {hi:>12}")
     else:
         lines.append("fields   none (output.fields was empty)")
     return lines

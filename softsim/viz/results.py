@@ -132,8 +132,10 @@ class Results:
         return False
 
 
-def open_results(path):
-    """Open the softsim output file ``path`` for reading; ``ResultsError`` naming what is wrong."""
+def open_results(path, allow_empty=False):
+    """Open the softsim output file ``path`` for reading; ``ResultsError`` naming what is wrong,
+    a file without a complete frame among them unless ``allow_empty`` (a run that failed in its
+    first frame has its status and reason, and nothing else, to show)."""
     import h5py
 
     path = Path(path)
@@ -148,9 +150,12 @@ def open_results(path):
         file.close()
         raise ResultsError(f"'{path}': not a softsim output file (no {', '.join(missing)})")
     results = Results(path, file)
-    if results.frame_count == 0:
+    if results.frame_count == 0 and not allow_empty:
+        status, reason = results.attrs.get("status"), results.attrs.get("status_reason")
         results.close()
-        raise ResultsError(f"'{path}': holds no frames yet")
+        if status in (None, "running"):
+            raise ResultsError(f"'{path}': holds no frames yet")
+        raise ResultsError(f"'{path}': holds no frames (status: {status}{f', {reason}' if reason else ''})")
     return results
 
 
