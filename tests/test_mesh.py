@@ -175,6 +175,19 @@ def test_gmsh_primitives(scene, spec, exact_volume, on_surface):
         assert (np.linalg.norm(mesh.points - [1.0, 2.0, 3.0], axis=1) <= 0.1 * (1 + 1e-12)).all()
 
 
+@pytest.mark.parametrize("spec, expected", [
+    ({"shape": "cylinder", "radius": 0.01, "length": 0.3, "axis": "x", "origin": [0, 0, 0], "element_size": 0.05},
+     r"mesh.element_size = 0.05: gmsh cannot mesh the cylinder of radius 0.01 m and length 0.3 m at origin "
+     r"\[0, 0, 0\] m with it \(.+\); use an element_size below its smallest dimension, 0.02 m$"),
+    ({"shape": "box", "size": [1, 1, 1], "origin": [1e20, 0, 0], "element_size": 0.5},
+     r"mesh: gmsh cannot build the box of size \[1, 1, 1\] m at origin \[1e\+20, 0, 0\] m \(.+\)$"),
+])
+def test_what_gmsh_cannot_mesh_is_one_line_naming_the_keys(scene, spec, expected):
+    with pytest.raises(MeshError, match=expected) as refused:
+        build_mesh(_scene_with_mesh(scene, spec).mesh)
+    assert "\n" not in str(refused.value)
+
+
 def _scene_with_mesh(scene, spec, **overrides):
     """A scene whose ``mesh`` section is exactly ``spec`` (the factory's base keys removed)."""
     cleared = {key: None for key in ("size", "element_size", "structured", "origin")}

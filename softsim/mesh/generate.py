@@ -35,8 +35,13 @@ def import_gmsh():
     return gmsh
 
 
-def _gmsh_tetrahedra(add_geometry, element_size):
-    """Run gmsh on the solid that ``add_geometry(occ)`` creates; return (points, tets) arrays."""
+def _gmsh_tetrahedra(add_geometry, element_size, solid, smallest):
+    """Run gmsh on the solid that ``add_geometry(occ)`` creates; return (points, tets) arrays.
+
+    solid: what it is, for messages ("cylinder of radius 0.01 m, length 0.3 m"); smallest: its
+    smallest dimension [m].  gmsh's own failures (an element far larger than the solid, a
+    geometry OpenCASCADE cannot build) become a ``MeshError`` naming the scene's keys.
+    """
     gmsh = import_gmsh()
     with _gmsh_lock:
         gmsh.initialize(interruptible=False)   # no signal handler: works off the main thread
@@ -44,13 +49,22 @@ def _gmsh_tetrahedra(add_geometry, element_size):
             gmsh.option.setNumber("General.Terminal", 0)
             gmsh.option.setNumber("General.Verbosity", 0)
             gmsh.model.add("softsim")
-            add_geometry(gmsh.model.occ)
-            gmsh.model.occ.synchronize()
+            try:
+                add_geometry(gmsh.model.occ)
+                gmsh.model.occ.synchronize()
+            except Exception as exc:           # gmsh raises plain Exception with its last error
+                raise MeshError(f"mesh: gmsh cannot build the {solid} ({_gmsh_reason(exc)})") from None
             gmsh.option.setNumber("Mesh.MeshSizeMin", 0.5 * element_size)
             gmsh.option.setNumber("Mesh.MeshSizeMax", element_size)
             gmsh.option.setNumber("Mesh.MeshSizeFromCurvature", 0)
             gmsh.option.setNumber("Mesh.Optimize", 1)
-            gmsh.model.mesh.generate(3)
+            try:
+                gmsh.model.mesh.generate(3)
+            except Exception as exc:
+                hint = (f"use an element_size below its smallest dimension, {smallest:g} m"
+                        if element_size >= smallest else "try a smaller element_size")
+                raise MeshError(f"mesh.element_size = {element_size:g}: gmsh cannot mesh the {solid} with it "
+                                f"({_gmsh_reason(exc)}); {hint}") from None
             node_tags, coords, _ = gmsh.model.mesh.getNodes()
             types, _, element_nodes = gmsh.model.mesh.getElements(dim=3)
         finally:
@@ -65,9 +79,19 @@ def _gmsh_tetrahedra(add_geometry, element_size):
     return points, tets
 
 
+def _gmsh_reason(exc):
+    """gmsh's error message, on one line."""
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
+def _metres(values):
+    return "[" + ", ".join(f"{v:g}" for v in values) + "] m"
+
+
 def gmsh_box(size, origin, element_size):
     """Unstructured tets of the box ``[origin, origin + size]`` [m]."""
-    return _gmsh_tetrahedra(lambda occ: occ.addBox(*origin, *size), element_size)
+    return _gmsh_tetrahedra(lambda occ: occ.addBox(*origin, *size), element_size,
+                            f"box of size {_metres(size)} at origin {_metres(origin)}", min(size))
 
 
 _AXES = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}
@@ -76,12 +100,15 @@ _AXES = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}
 def gmsh_cylinder(radius, length, axis, origin, element_size):
     """Tets of a cylinder [m]: first end face centred at ``origin``, extending ``length`` along ``axis``."""
     direction = np.asarray(_AXES[axis]) * length
-    return _gmsh_tetrahedra(lambda occ: occ.addCylinder(*origin, *direction, radius), element_size)
+    return _gmsh_tetrahedra(lambda occ: occ.addCylinder(*origin, *direction, radius), element_size,
+                            f"cylinder of radius {radius:g} m and length {length:g} m at origin {_metres(origin)}",
+                            min(2.0 * radius, length))
 
 
 def gmsh_sphere(radius, origin, element_size):
     """Tets of a ball of ``radius`` [m] centred at ``origin``."""
-    return _gmsh_tetrahedra(lambda occ: occ.addSphere(*origin, radius), element_size)
+    return _gmsh_tetrahedra(lambda occ: occ.addSphere(*origin, radius), element_size,
+                            f"sphere of radius {radius:g} m at origin {_metres(origin)}", 2.0 * radius)
 
 
 # Corners of a unit hex cell as (i, j, k) offsets, numbered i + 2 j + 4 k.
