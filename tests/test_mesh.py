@@ -520,6 +520,10 @@ def test_check_mesh_output_names_the_data_file_that_would_replace_an_input(tmp_p
         with pytest.raises(MeshError, match=rf"^--output = '.*{name}': meshio writes no format by the extension "
                                             rf"{re.escape(shown)}; use one like \.vtu"):
             check_mesh_output(tmp_path / name)
+    for name, form in (("m.stl", "stl"), ("m.OBJ", "obj"), ("m.ply", "ply"), ("m.off", "off")):
+        with pytest.raises(MeshError, match=rf"^--output = '.*{name}': {form} holds surfaces only, not tetrahedra"):
+            check_mesh_output(tmp_path / name)
+    check_mesh_output(tmp_path / "m.vol.gz")
 
 
 def test_a_large_gmsh_mesh_is_announced_before_gmsh_starts(monkeypatch, caplog):
