@@ -31,9 +31,9 @@ mesh:
   element_size: 0.02
 material:
   model: stvk
-  youngs_modulus: 1e6
+  youngs_modulus: 2.0e11
   poissons_ratio: 0.3
-  density: 2.0e11
+  density: 8e3
 """
 
 
@@ -118,8 +118,8 @@ def test_every_field_has_a_description():
 
 def test_exponent_numbers_load_as_floats(tmp_path):
     scene = load_scene(write(tmp_path, MINIMAL_YAML))
-    assert scene.material.youngs_modulus == 1.0e6
-    assert scene.material.density == 2.0e11
+    assert scene.material.youngs_modulus == 2.0e11
+    assert scene.material.density == 8.0e3
     data = yaml.load("[1e6, 2.0e11, -3E-4, .5, -.5e-3, 12, yes, 1.2.3]", Loader=SceneLoader)
     assert data == [1.0e6, 2.0e11, -3e-4, 0.5, -5e-4, 12, True, "1.2.3"]
     assert all(type(value) is float for value in data[:5])
@@ -148,6 +148,10 @@ def test_frozen():
         ("material.density=heavy", "material.density = 'heavy': must be a number"),
         ("material.density='1e6'", "material.density = '1e6': must be a number"),
         ("material.youngs_modulus=-5", "material.youngs_modulus = -5: must be greater than 0"),
+        ("material.youngs_modulus=1e200",
+         "material.youngs_modulus = 1e+200: must be greater than 0 and less than 1e+15"),
+        ("material.density=1e-300", "material.density = 1e-300: must be at least 0.001"),
+        ("material.density=0", "material.density = 0: must be at least 0.001"),
         ("time.dt=-1", "time.dt = -1: must be 'auto', 'exact' or a positive number of seconds"),
         ("time.dt=fast", "time.dt = 'fast': must be 'auto', 'exact' or a positive number of seconds"),
         ("time.duration=0", "time.duration = 0: must be greater than 0"),

@@ -35,6 +35,9 @@ DT_POLICIES = ("substep", "refuse", "allow")
 PRECISIONS = ("float64", "float32")
 # Models with a float32 step: those with a displacement form (materials.models.DISPLACEMENT_FORM_MODELS).
 FLOAT32_MODELS = ("linear", "stvk", "neohookean")
+# Material limits [Pa], [kg/m^3] (see ``YoungsModulus``).
+MAX_YOUNGS_MODULUS = 1e15
+MIN_DENSITY = 1e-3
 # Models that push an inverted element back (materials.models.INVERSION_SAFE); the guard stops the others.
 INVERSION_SAFE_MODELS = ("corotated", "neohookean")
 # The optional per-frame fields (softsim/io/fields.py says where each lives, its shape and unit).
@@ -213,6 +216,10 @@ Positive = Annotated[float, BeforeValidator(_number_checker(gt=0.0))]
 NonNegative = Annotated[float, BeforeValidator(_number_checker(ge=0.0))]
 Real = Annotated[float, BeforeValidator(_number_checker())]
 PoissonRatio = Annotated[float, BeforeValidator(_number_checker(gt=-1.0, lt=0.5))]
+# Beyond any solid (diamond: E 1.2e12 Pa; aerogels: 1 kg/m^3), and far enough inside double
+# precision that stiffness over mass, the stable step and the energies stay finite.
+YoungsModulus = Annotated[float, BeforeValidator(_number_checker(gt=0.0, lt=MAX_YOUNGS_MODULUS))]
+Density = Annotated[float, BeforeValidator(_number_checker(ge=MIN_DENSITY))]
 Vector = Annotated[Vec3, BeforeValidator(_check_vec3)]
 PositiveVector = Annotated[Vec3, BeforeValidator(_check_positive_vec3)]
 Matrix = Annotated[Mat3, BeforeValidator(_check_mat3)]
@@ -340,9 +347,9 @@ class Material(Section):
     """Isotropic elastic material law and its constants."""
 
     model: ModelName = Field(description="linear | stvk | corotated | neohookean (no unit)")
-    youngs_modulus: Positive = Field(description="Young's modulus E [Pa] > 0")
+    youngs_modulus: YoungsModulus = Field(description="Young's modulus E [Pa], 0 < E < 1e15")
     poissons_ratio: PoissonRatio = Field(description="Poisson's ratio nu [-], -1 < nu < 0.5")
-    density: Positive = Field(description="mass density rho [kg/m^3] > 0")
+    density: Density = Field(description="mass density rho [kg/m^3] >= 1e-3")
 
 
 class _Region(Section):
