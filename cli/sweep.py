@@ -9,7 +9,8 @@ from pathlib import Path
 import click
 
 from softsim.sweep import expand_sweep, load_sweep, local_layout, plan_runs, plot_summary
-from softsim.sweep.runner import local_client, remote_client, run_sweep
+from softsim.sweep.plot import require_matplotlib
+from softsim.sweep.runner import local_client, remote_client, run_sweep, summary_columns
 
 from .launch import EXIT_INTERRUPTED
 
@@ -108,6 +109,10 @@ def sweep(sweep_file, output_dir, workers, scheduler, shared_dir, force, dry_run
         raise click.BadParameter("must look like X:Y or X:Y:LINES", param_hint="--plot")
 
     runs = expand_sweep(load_sweep(sweep_file), output_dir)
+    if plot_columns is not None:            # checked before any run: a typo must not cost a whole sweep
+        columns = summary_columns(runs)
+        plot_columns = [_column(name, columns, "--plot") for name in plot_columns]
+        require_matplotlib()
     if dry_run:
         to_run, _ = plan_runs(runs, force) if output_dir.is_dir() else (runs, [])
         running = {run.index for run in to_run}
@@ -162,9 +167,7 @@ def sweep(sweep_file, output_dir, workers, scheduler, shared_dir, force, dry_run
         bar.close()
 
     if plot_columns is not None:
-        columns = list(result.rows[0])
-        x, y = (_column(name, columns, "--plot") for name in plot_columns[:2])
-        lines = _column(plot_columns[2], columns, "--plot") if len(plot_columns) == 3 else None
+        x, y, lines = (plot_columns + [None])[:3]
         image = plot_summary(result.summary_paths[0], output_dir / "summary.png", x, y, lines,
                              title=Path(sweep_file).name)
         log.info("plot: %s", image)

@@ -25,7 +25,7 @@ from softsim.errors import ConfigError, MissingDependencyError, SimulationError
 from softsim.mesh import build_mesh
 from softsim.simulation import prepare, simulate
 from softsim.sweep import expand_sweep, load_sweep, parse_sweep, plot_summary, run_sweep, tip_vertices
-from softsim.sweep.runner import (build_meshes, import_distributed, local_client, plan_runs,
+from softsim.sweep.runner import (build_meshes, import_distributed, local_client, plan_runs, summary_columns,
                                   write_summary)
 from softsim.sweep import runner
 from softsim.sweep.spec import format_value, run_name
@@ -342,8 +342,10 @@ def test_a_run_refused_before_writing_is_reported_without_a_file(tmp_path, clien
              "set": {"time.dt": 1.0e-3}}
     out = tmp_path / "out"
     out.mkdir()
-    result = run_sweep(expand_sweep(load_sweep(write_sweep(tmp_path, sweep)), out), out, client)
+    runs = expand_sweep(load_sweep(write_sweep(tmp_path, sweep)), out)
+    result = run_sweep(runs, out, client)
     refused, split = result.rows
+    assert list(refused) == list(split) == summary_columns(runs)      # known before the runs (--plot)
     assert refused["status"] == "failed" and "dt_policy: refuse" in refused["status_reason"]
     assert not (out / refused["file"]).exists()
     assert split["status"] == "complete" and (out / split["file"]).is_file()
@@ -361,6 +363,30 @@ def test_cli_on_an_existing_scheduler_with_a_shared_dir(tmp_path, client):
     assert (out / "youngs_modulus=2e+06.h5").is_file() and (out / "summary.png").stat().st_size > 0
     result = CliRunner().invoke(cli, args[:-2])
     assert "2 runs, 2 complete (2 skipped, already complete)" in result.output
+
+
+@pytest.mark.parametrize("spec", ["nope:tip_dz", "youngs_modulus:nope", "youngs_modulus:tip_dz:nope"])
+@pytest.mark.parametrize("dry_run", [True, False])
+def test_a_bad_plot_column_is_refused_before_any_run(tmp_path, spec, dry_run):
+    path = write_sweep(tmp_path, {"base": "bar.yaml", "parameters": {"material.youngs_modulus": [1.0e6, 2.0e6]}})
+    args = ["sweep", str(path), "-o", str(tmp_path / "out"), "--plot", spec] + (["--dry-run"] if dry_run else [])
+    result = CliRunner().invoke(cli, args)
+    assert result.exit_code == 2
+    assert "'nope' is not a column of the summary (columns: run, name, file, material.youngs_modulus, status" in (
+        result.output)
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_plot_without_matplotlib_is_refused_before_any_run(tmp_path, monkeypatch):
+    import importlib.util
+
+    find_spec = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "matplotlib" else
+                        find_spec(name, *a))
+    path = write_sweep(tmp_path, {"base": "bar.yaml", "parameters": {"material.youngs_modulus": [1.0e6]}})
+    result = CliRunner().invoke(cli, ["sweep", str(path), "-o", str(tmp_path / "out"), "--plot", "youngs_modulus:tip_dz"])
+    assert result.exit_code == 1 and "the sweep plot needs matplotlib" in result.output
+    assert not (tmp_path / "out").exists()
 
 
 def test_ctrl_c_while_the_local_workers_stop_reports_the_finished_sweep(tmp_path, client, monkeypatch):

@@ -22,6 +22,15 @@ def read_summary(path):
                 for row in csv.DictReader(stream)]
 
 
+def require_matplotlib():
+    """Raise ``MissingDependencyError`` unless matplotlib can be imported (checked before a sweep
+    whose plot would otherwise fail only after every run)."""
+    import importlib.util
+
+    if importlib.util.find_spec("matplotlib") is None:
+        raise MissingDependencyError(f"the sweep plot needs matplotlib: {PLOT_EXTRA}")
+
+
 def plot_summary(summary_path, image_path, x, y="tip_displacement", lines=None, title=None):
     """Plot column ``y`` of ``summary_path`` against column ``x``, one line per value of ``lines``.
 

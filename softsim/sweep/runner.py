@@ -186,6 +186,12 @@ def plan_runs(runs, force=False):
     return to_run, to_skip
 
 
+def summary_columns(runs):
+    """The columns of the summary of ``runs`` (``summary_row``'s keys), known before any run:
+    run, name, file, each swept key, then ``METRIC_COLUMNS``."""
+    return ["run", "name", "file", *(runs[0].parameters if runs else ()), *METRIC_COLUMNS]
+
+
 def summary_row(run, metrics=None, error=None):
     """One summary row: run number, name, file, each swept key's value, then ``METRIC_COLUMNS``."""
     row = {"run": run.index + 1, "name": run.name, "file": run.path.name}
