@@ -40,6 +40,22 @@ class _EchoHandler(logging.Handler):
             click.echo(line, err=True)
 
 
+class _UsageLine(click.ClickException):
+    """A usage error (a bad option or argument) as one line, with click's exit code for those."""
+
+    exit_code = 2
+
+
+def _one_line(exc, ctx):
+    """A ``click.UsageError``, which click prints as usage, a hint and the error (three lines), as
+    one line naming the help to read; the help itself where there was nothing to parse."""
+    if isinstance(exc, click.exceptions.NoArgsIsHelpError):
+        return exc
+    context = exc.ctx or ctx
+    see = f" (see '{context.command_path} --help')" if context is not None else ""
+    return _UsageLine(f"{exc.format_message()}{see}")
+
+
 class SoftsimGroup(click.Group):
     """Turns library errors into one line on stderr and a non-zero exit code, never a traceback."""
 
@@ -48,6 +64,8 @@ class SoftsimGroup(click.Group):
             return super().invoke(ctx)
         except SoftsimError as exc:
             raise click.ClickException(str(exc)) from None
+        except click.UsageError as exc:
+            raise _one_line(exc, ctx) from None
         except KeyboardInterrupt:
             click.echo("softsim: interrupted", err=True)
             sys.exit(EXIT_INTERRUPTED)
@@ -61,6 +79,12 @@ class SoftsimGroup(click.Group):
             raise click.ClickException(
                 f"unexpected {type(exc).__name__}: {first_line} (run '{again}' for the traceback: -vv goes "
                 f"before the command)") from None
+
+    def make_context(self, info_name, args, parent=None, **extra):
+        try:
+            return super().make_context(info_name, args, parent, **extra)
+        except click.UsageError as exc:        # the group's own options (softsim --bad)
+            raise _one_line(exc, None) from None
 
 
 @click.group(cls=SoftsimGroup, context_settings={"help_option_names": ["-h", "--help"]})

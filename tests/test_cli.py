@@ -271,9 +271,9 @@ BAD_INPUTS = [
     ("youngs-negative", SCENE, ["--set", "material.youngs_modulus=-2e8"],
      ["material.youngs_modulus", "-200000000.0", "greater than 0"]),
     ("density-zero", scene_with(("density: 1000.0", "density: 0.0")), [],
-     ["material.density", "0.0", "greater than 0"]),
+     ["material.density", "0.0", "at least 0.001"]),
     ("density-negative", scene_with(("density: 1000.0", "density: -1000")), [],
-     ["material.density", "-1000", "greater than 0"]),
+     ["material.density", "-1000", "at least 0.001"]),
     ("duration-zero", scene_with(("duration: 0.003", "duration: 0")), [],
      ["time.duration", "0", "greater than 0"]),
     ("duration-negative", SCENE, ["--set", "time.duration=-1"], ["time.duration", "-1", "greater than 0"]),
@@ -506,3 +506,23 @@ def test_ctrl_c_while_the_commands_load_is_one_line_and_exit_130():
             "main()\n")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert (done.returncode, done.stderr, done.stdout) == (130, "softsim: interrupted\n", "")
+
+
+@pytest.mark.parametrize("args, expected", [
+    (["run", "{scene}", "--resume", "--overwrite"],
+     "Error: --resume and --overwrite exclude each other (see 'softsim run --help')"),
+    (["run"], "Error: Missing argument 'SCENE'. (see 'softsim run --help')"),
+    (["render", "x.h5", "-o", "x.png", "--view", "top"], "Error: Invalid value for '--view': 'top' is not one of "),
+    (["nosuch"], "Error: No such command 'nosuch'. (see 'softsim --help')"),
+    (["--bad"], "Error: No such option '--bad'. (see 'softsim --help')"),
+])
+def test_a_usage_error_is_one_line_naming_the_help(work, args, expected):
+    """click's usage errors (usage, a hint, the error: three lines) come as one line, exit code 2."""
+    result = CliRunner().invoke(cli, [a.format(scene=write(work, SCENE)) for a in args], prog_name="softsim")
+    assert result.exit_code == 2
+    assert len(result.stderr.splitlines()) == 1 and result.stderr.startswith(expected), result.stderr
+
+
+def test_no_command_shows_the_help():
+    result = invoke()
+    assert "Commands:" in result.output and "Error" not in result.output
