@@ -63,6 +63,9 @@ def export(path, fmt, output=None, frames=None, overwrite=False):
 
 def _export_vtu(meshio, results, selected, output, stem, overwrite):
     single = output is not None and str(output).endswith(".vtu")
+    if output is not None and not single and Path(output).suffix and not Path(output).is_dir():
+        raise ResultsError(f"-o '{output}': --format vtu writes a folder of .vtu files, or one .vtu file for "
+                           f"one frame; name a folder without an extension, or a .vtu file")
     if single and len(selected) != 1:
         raise ResultsError(f"-o '{output}': a single .vtu file holds one frame, but {len(selected)} are "
                            f"selected; give a folder, or --frames N")
