@@ -381,7 +381,14 @@ def test_override_errors_name_the_override(tmp_path):
     path = write(tmp_path, MINIMAL_YAML)
     for override, expected in [
         ("material.density", "override 'material.density': must look like key.path=value"),
-        ("mesh.size.x=1", "override 'mesh.size.x=1': mesh.size is [1, 0.1, 0.1], not a mapping"),
+        ("mesh.size.x=1", "override 'mesh.size.x=1': mesh.size is a list, so it has no key 'x'; name an item, "
+                          "as mesh.size[0]"),
+        ("mesh.shape.x=1", "override 'mesh.shape.x=1': mesh.shape is 'box', not a mapping, so it has no key 'x'"),
+        ("fixed[0].min=[0, 0, 0]", "override 'fixed[0].min=[0, 0, 0]': fixed has no items, so no fixed[0]; give "
+                                   "the whole list, e.g. fixed=[...]"),
+        ("mesh[0]=1", "override 'mesh[0]=1': mesh is {'shape': 'box'"),
+        ("fixed[-1].min=1", "override 'fixed[-1].min=1': 'fixed[-1]' is no key; a list item is named by its "
+                            "number from 0"),
         ("material..density=1", "override 'material..density=1': the key path"),
         ("gravity=[0, 0", "override 'gravity=[0, 0': invalid YAML"),
     ]:
@@ -392,9 +399,19 @@ def test_override_errors_name_the_override(tmp_path):
         load_scene(path, overrides=["material.denisty=3"])
 
 
+def test_overrides_name_list_items_as_the_errors_do():
+    data = apply_overrides(MINIMAL, ["fixed=[{min: [0, 0, 0], max: [1, 1, 1]}, {min: [2, 2, 2], max: [3, 3, 3]}]",
+                                     "fixed[1].max=[4, 4, 4]", "fixed[1].velocity=[0, 0, 1]", "mesh.size[2]=0.2"])
+    scene = parse_scene(data)
+    assert scene.fixed[0].max == (1.0, 1.0, 1.0) and scene.fixed[1].max == (4.0, 4.0, 4.0)
+    assert scene.fixed[1].velocity == (0.0, 0.0, 1.0) and scene.mesh.size == (1.0, 0.1, 0.2)
+    with pytest.raises(ConfigError, match=r"^override 'fixed\[2\].min=1': fixed has 2 items, so no fixed\[2\]$"):
+        apply_overrides(data, ["fixed[2].min=1"])
+
+
 def test_overrides_do_not_touch_the_input():
     before = copy.deepcopy(MINIMAL)
-    apply_overrides(MINIMAL, ["material.density=1", "ground.height=2"])
+    apply_overrides(MINIMAL, ["material.density=1", "ground.height=2", "mesh.size[0]=3"])
     assert MINIMAL == before
 
 

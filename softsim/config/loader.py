@@ -121,8 +121,9 @@ def apply_overrides(data: Mapping, overrides: Iterable[str]) -> dict:
     """A copy of ``data`` with each ``"dotted.key=value"`` override applied in order.
 
     The value is parsed with ``SceneLoader`` (``1e6`` -> float, ``[1, 2, 3]`` -> list, empty ->
-    null).  Missing intermediate keys (or null ones) become new mappings; a path through a list or
-    scalar is an error.
+    null).  A key may index a list item, as the error messages name them (``fixed[0].min``).
+    Missing intermediate keys (or null ones) become new mappings; a path through a scalar, a list
+    without an index, or an index past a list's end is an error.
     """
     result = copy.deepcopy(dict(data))
     if isinstance(overrides, str):
@@ -150,23 +151,54 @@ def _parse_override(override: Any) -> tuple[list[str], Any]:
     return keys, value
 
 
+_LIST_ITEM = re.compile(r"^(?P<name>[^\[\]]+)\[(?P<index>\d+)\]$")
+
+
 def _set_path(data: dict, keys: list[str], value: Any, override: str) -> None:
-    """Set ``data[k0][k1]...[kn] = value``, creating mappings on the way."""
-    node = data
-    for depth, key in enumerate(keys[:-1]):
-        child = node.get(key)
-        if child is None:
-            child = node[key] = {}
-        elif isinstance(child, Mapping):
-            child = node[key] = dict(child)
+    """Set ``data[k0][k1]...[kn] = value``, creating mappings on the way; ``name[i]`` is item ``i``
+    of the list ``name``."""
+    steps: list[Union[str, int]] = []
+    for key in keys:
+        item = _LIST_ITEM.match(key)
+        if item is None and ("[" in key or "]" in key):
+            raise ConfigError(f"override {override!r}: {key!r} is no key; a list item is named by its "
+                              f"number from 0, as fixed[0]")
+        steps += [item["name"], int(item["index"])] if item else [key]
+    node: Any = data
+    for depth, (step, next_step) in enumerate(zip(steps[:-1], steps[1:])):
+        where = _dotted(steps[: depth + 1])
+        if isinstance(step, int):                  # node is a list (checked below, one step up)
+            if step >= len(node):
+                raise ConfigError(f"override {override!r}: {_dotted(steps[:depth])} has {len(node)} "
+                                  f"item{'s' if len(node) != 1 else ''}, so no {where}")
+            child = node[step]
         else:
-            where = ".".join(keys[: depth + 1])
-            raise ConfigError(
-                f"override {override!r}: {where} is {_show(child)}, not a mapping, "
-                f"so it has no key {keys[depth + 1]!r}"
-            )
+            child = node.get(step)
+        item = f"{where}[{next_step}]"
+        if isinstance(next_step, int) and child is None:
+            raise ConfigError(f"override {override!r}: {where} has no items, so no {item}; give the whole "
+                              f"list, e.g. {where}=[...]")
+        if isinstance(next_step, int):
+            if not isinstance(child, list):
+                raise ConfigError(f"override {override!r}: {where} is {_show(child)}, not a list, so no {item}")
+            child = list(child)
+        elif child is None:
+            child = {}
+        elif isinstance(child, Mapping):
+            child = dict(child)
+        elif isinstance(child, list):
+            raise ConfigError(f"override {override!r}: {where} is a list, so it has no key {next_step!r}; "
+                              f"name an item, as {where}[0]")
+        else:
+            raise ConfigError(f"override {override!r}: {where} is {_show(child)}, not a mapping, "
+                              f"so it has no key {next_step!r}")
+        node[step] = child
         node = child
-    node[keys[-1]] = value
+    last = steps[-1]
+    if isinstance(last, int) and last >= len(node):
+        raise ConfigError(f"override {override!r}: {_dotted(steps[:-1])} has {len(node)} "
+                          f"item{'s' if len(node) != 1 else ''}, so no {_dotted(steps)}")
+    node[last] = value
 
 
 # ---------------------------------------------------------------------------------------------
