@@ -2,6 +2,7 @@
 
 import contextlib
 import logging
+import math
 import signal
 import sys
 
@@ -91,8 +92,9 @@ def run(scene, output, overwrite, resume, yes, overrides):
     log.info("mesh: %s", format_quality(prepared.mesh.quality()))
     plan = prepared.plan
     given = "" if prepared.substeps == 1 else f" (time.dt split into {prepared.substeps} sub-steps, dt_policy: substep)"
-    log.info("dt = %.4g s%s, safe step %.4g s (%s), %d steps, %d frames", plan.dt, given, prepared.safe_dt,
-             safe_step_basis(scene_config.time), plan.total_steps, len(plan.frame_steps))
+    safe = (f"safe step {prepared.safe_dt:.4g} s ({safe_step_basis(scene_config.time)})"
+            if math.isfinite(prepared.safe_dt) else "no step limit (nothing moves but held vertices)")
+    log.info("dt = %.4g s%s, %s, %d steps, %d frames", plan.dt, given, safe, plan.total_steps, len(plan.frame_steps))
     for problem in check_run_cost(prepared, scene_config.output.path, confirmed=yes):
         log.warning("%s (--yes given)", problem)
     bar = _progress_bar(plan.total_steps)

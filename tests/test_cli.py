@@ -526,3 +526,10 @@ def test_a_usage_error_is_one_line_naming_the_help(work, args, expected):
 def test_no_command_shows_the_help():
     result = invoke()
     assert "Commands:" in result.output and "Error" not in result.output
+
+
+def test_a_body_held_everywhere_has_no_step_limit_and_runs(work):
+    scene = write(work, scene_with(("{min: [-1.0e-6, -1, -1], max: [1.0e-6, 1, 1]}", "{min: [-1, -1, -1], max: [1, 1, 1]}")))
+    result = invoke("run", scene, "-o", work / "held.h5")
+    assert result.exit_code == 0, result.stderr
+    assert "no step limit (nothing moves but held vertices)" in result.stderr and " inf " not in result.stderr
