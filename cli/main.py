@@ -46,13 +46,22 @@ class _UsageLine(click.ClickException):
     exit_code = 2
 
 
+# click 8.2 and later raise this for a command given no arguments, to show its help.
+_NO_ARGS_IS_HELP = getattr(click.exceptions, "NoArgsIsHelpError", ())
+
+
 def _one_line(exc, ctx):
     """A ``click.UsageError``, which click prints as usage, a hint and the error (three lines), as
     one line naming the help to read; the help itself where there was nothing to parse."""
-    if isinstance(exc, click.exceptions.NoArgsIsHelpError):
+    if isinstance(exc, _NO_ARGS_IS_HELP):
         return exc
-    context = exc.ctx or ctx
-    see = f" (see '{context.command_path} --help')" if context is not None else ""
+    if exc.ctx is not None:
+        command = exc.ctx.command_path
+    elif ctx is not None:         # an option's missing value: click names no context
+        command = " ".join(filter(None, (ctx.command_path, ctx.invoked_subcommand)))
+    else:
+        command = None
+    see = f" (see '{command} --help')" if command else ""
     return _UsageLine(f"{exc.format_message()}{see}")
 
 

@@ -344,7 +344,8 @@ def _simulate(prepared, output_path, progress, should_stop, resume, overwrite, c
 
     if resume:
         writer, stored = RunWriter.reopen(output_path, fields, frames=len(plan.frame_steps), started=started,
-                                          needs=FrameGuard.SNAPSHOT_NAMES, mesh=(model.mesh.points, model.mesh.tets))
+                                          needs=FrameGuard.SNAPSHOT_NAMES, mesh=(model.mesh.points, model.mesh.tets),
+                                          attributes=run_sources(model.mesh))
         state.x[...] = model.from_user_order(stored["positions"])
         state.v[...] = model.from_user_order(stored["velocities"])
         state.step = int(stored["step"])

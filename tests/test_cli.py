@@ -512,6 +512,7 @@ def test_ctrl_c_while_the_commands_load_is_one_line_and_exit_130():
     (["run", "{scene}", "--resume", "--overwrite"],
      "Error: --resume and --overwrite exclude each other (see 'softsim run --help')"),
     (["run"], "Error: Missing argument 'SCENE'. (see 'softsim run --help')"),
+    (["run", "{scene}", "--set"], "Error: Option '--set' requires an argument. (see 'softsim run --help')"),
     (["render", "x.h5", "-o", "x.png", "--view", "top"], "Error: Invalid value for '--view': 'top' is not one of "),
     (["nosuch"], "Error: No such command 'nosuch'. (see 'softsim --help')"),
     (["--bad"], "Error: No such option '--bad'. (see 'softsim --help')"),

@@ -175,6 +175,15 @@ def test_gmsh_primitives(scene, spec, exact_volume, on_surface):
         assert (np.linalg.norm(mesh.points - [1.0, 2.0, 3.0], axis=1) <= 0.1 * (1 + 1e-12)).all()
 
 
+def test_a_mesh_file_gone_after_the_scene_loaded_is_one_line(scene, tmp_path):
+    points, tets = small_mesh()
+    meshio.write(tmp_path / "m.vtu", meshio.Mesh(points, [("tetra", tets)]))
+    spec = file_scene(scene, tmp_path / "m.vtu").mesh
+    (tmp_path / "m.vtu").unlink()
+    with pytest.raises(MeshError, match=r"^mesh.file = '.*m\.vtu': cannot be read \(No such file or directory\)$"):
+        build_mesh(spec)
+
+
 @pytest.mark.parametrize("spec, expected", [
     ({"shape": "cylinder", "radius": 0.01, "length": 0.3, "axis": "x", "origin": [0, 0, 0], "element_size": 0.05},
      r"mesh.element_size = 0.05: gmsh cannot mesh the cylinder of radius 0.01 m and length 0.3 m at origin "

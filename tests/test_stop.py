@@ -417,6 +417,10 @@ def test_resume_refuses_a_mesh_file_whose_content_changed(scene, tmp_path):
     with pytest.raises(SimulationError, match="the mesh differs from the one .* was written with"):
         simulate(prepare(s), part, resume=True)
     assert part.read_bytes() == before
+    meshio.write(mesh_file, meshio.Mesh(points, [("tetra", tets)]))      # the mesh it was run with, again
+    assert simulate(prepare(s), part, resume=True).status == "complete"
+    with h5py.File(part) as f:                                # and the resumed file records the hash
+        assert f.attrs["mesh_file_sha256"] == hashlib.sha256(mesh_file.read_bytes()).hexdigest()
 
 
 def test_resume_refuses_a_changed_scene_a_complete_run_and_a_missing_file(scene, tmp_path):

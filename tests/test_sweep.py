@@ -297,6 +297,11 @@ def test_a_complete_run_of_a_mesh_file_that_changed_is_not_taken_as_done(tmp_pat
     runs = expand_sweep(load_sweep(write_sweep(tmp_path, sweep, base)), out)
     run_sweep(runs, out, client)
     assert plan_runs(runs) == ([], runs)
+    with h5py.File(runs[0].path, "a") as f:           # as a softsim that kept no hash wrote it: rerun
+        hashed = f.attrs.pop("mesh_file_sha256")
+    assert plan_runs(runs) == (runs, [])
+    with h5py.File(runs[0].path, "a") as f:
+        f.attrs["mesh_file_sha256"] = hashed
     meshio.write(tmp_path / "bar.vtu", meshio.Mesh(2.0 * points, [("tetra", tets)]))
     with pytest.raises(SimulationError, match=r"mesh.file: the content of .*bar.vtu' changed .*; pass --force"):
         plan_runs(runs)

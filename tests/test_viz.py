@@ -283,6 +283,7 @@ def test_plot_writes_a_png(bar, cube, tmp_path):
     (["export", "{bar}", "--frames", "5:9"], "selects no frame"),
     (["export", "{bar}", "--frames", "x"], "expected N or start:stop[:step]"),
     (["export", "{bar}", "--frames", "-1", "-o", "{tmp}/one.txt"], "name a folder without an extension, or a .vtu"),
+    (["export", "{bar}", "--frames", "0:2", "-o", "{tmp}/two.VTU"], "a single .vtu file holds one frame, but 2"),
     (["plot", "{bar}", "-o", "{tmp}/p.png", "--vertex", "1000"], "--vertex 1000: out of range"),
     (["info", "{tmp}/missing.h5"], "no such file"),
 ])

@@ -163,7 +163,7 @@ def _set_path(data: dict, keys: list[str], value: Any, override: str) -> None:
         if item is None and ("[" in key or "]" in key):
             raise ConfigError(f"override {override!r}: {key!r} is no key; a list item is named by its "
                               f"number from 0, as fixed[0]")
-        steps += [item["name"], int(item["index"])] if item else [key]
+        steps += [item["name"].strip(), int(item["index"])] if item else [key]
     node: Any = data
     for depth, (step, next_step) in enumerate(zip(steps[:-1], steps[1:])):
         where = _dotted(steps[: depth + 1])

@@ -336,7 +336,7 @@ class RunWriter:
         f.flush()
 
     @classmethod
-    def reopen(cls, path, fields=(), xdmf=True, frames=1, started=None, needs=(), mesh=None):
+    def reopen(cls, path, fields=(), xdmf=True, frames=1, started=None, needs=(), mesh=None, attributes=None):
         """``(writer, state)`` to continue the run in ``path`` from its last complete frame.
 
         ``state`` is a dict of ``state/``: ``positions``, ``velocities`` (n, 3) in the user's order,
@@ -347,6 +347,8 @@ class RunWriter:
         hold (``require_resume_names``), checked before anything in the file changes.  mesh:
         ``(points, tets)`` of the run going on, in the user's order, refused unless equal to the
         file's ``mesh/`` (a mesh file edited, or gmsh meshing the scene otherwise, since).
+        attributes: as for a new writer, recorded once the checks pass (a file from a softsim that
+        did not record them gets them).
         """
         self = cls.__new__(cls)
         self.path = Path(path)
@@ -384,7 +386,7 @@ class RunWriter:
         for dataset in _frame_datasets(f):
             if dataset.shape[0] < frames:
                 dataset.resize(frames, axis=0)
-        f.attrs.update(status="running", status_reason="")
+        f.attrs.update(status="running", status_reason="", **(attributes or {}))
         f.flush()
         _keep_metadata_until_flush(f)
         self._open_datasets()

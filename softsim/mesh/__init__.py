@@ -144,7 +144,10 @@ def build_mesh(spec):
         return checked_mesh(*raw_tetrahedra(spec), f"mesh.shape = {spec.shape}")
     # Hashed before it is read: a file changed in between then differs from its stored hash later
     # (a resume refused), never the other way round (a changed mesh taken for the one run before).
-    digest = content_sha256(spec.file)
+    try:
+        digest = content_sha256(spec.file)
+    except OSError as exc:
+        raise MeshError(f"mesh.file = '{spec.file}': cannot be read ({exc.strerror or exc})") from None
     checked = checked_mesh(*raw_tetrahedra(spec), f"mesh.file = '{spec.file}'")
     return dataclasses.replace(checked, source_sha256=digest)
 

@@ -199,6 +199,10 @@ def run_catalogue_scene(entry, model, out_dir):
     data["output"] = {**data.get("output", {}), "path": f"{name}.h5"}
     (out_dir / "scenes").mkdir(parents=True, exist_ok=True)
     scene_file = out_dir / "scenes" / f"{name}.yaml"
+    path = out_dir / "runs" / f"{name}.h5"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.unlink(missing_ok=True)                      # no stale file from an earlier report
+    path.with_suffix(".xdmf").unlink(missing_ok=True)
     note = ", ".join(entry.drift_caveats)
     try:
         scene = parse_scene(data)
@@ -207,10 +211,6 @@ def run_catalogue_scene(entry, model, out_dir):
         return CatalogueRow(entry.name, model, f"refused: {_one_line(exc)}", 0, 0, None, None, None, None,
                             None, note, 0.0, None, ())
     scene_file.write_text(scene_to_yaml(scene))
-    path = out_dir / "runs" / f"{name}.h5"
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.unlink(missing_ok=True)                      # no stale file from an earlier report
-    path.with_suffix(".xdmf").unlink(missing_ok=True)
     scene = scene.model_copy(update={"output": scene.output.model_copy(update={"path": str(path)})})
     started = _time.perf_counter()
     with _captured_warnings() as warnings:

@@ -147,7 +147,9 @@ class SweepResult:
 
 
 def plan_runs(runs, force=False):
-    """``(to_run, to_skip)``: runs whose file is complete with the same scene are skipped unless ``force``.
+    """``(to_run, to_skip)``: runs whose file is complete with the same scene are skipped unless ``force``
+    (for a mesh file, the same content: ``simulation.run_file_difference``; a file that does not
+    record it is rerun).
 
     A file that is not complete (failed, interrupted, left running by a killed sweep) is
     replaced.  A complete file written for a different scene is not replaced without ``force``:
@@ -167,8 +169,8 @@ def plan_runs(runs, force=False):
         if path.is_dir():
             raise SimulationError(f"run {run.index + 1} ({run.name}): {path} is a directory")
         stored = run_attributes(path)
-        status = stored.get("status")
-        if status is None or "config" not in stored:
+        status = stored.get("status", "")
+        if "config" not in stored:
             raise SimulationError(f"run {run.index + 1} ({run.name}): {path} exists and is not a softsim run "
                                   f"file; pass --force to replace it or choose another output folder")
         if status != "complete":
@@ -182,6 +184,9 @@ def plan_runs(runs, force=False):
             raise SimulationError(
                 f"run {run.index + 1} ({run.name}): {path} is complete but was written for another scene "
                 f"({difference}); pass --force to rerun it or choose another output folder")
+        if run.scene.mesh.shape == "file" and "mesh_file_sha256" not in stored:
+            to_run.append(run)          # written before softsim kept the mesh file's hash: its mesh is unknown
+            continue
         to_skip.append(run)
     return to_run, to_skip
 

@@ -62,7 +62,7 @@ def export(path, fmt, output=None, frames=None, overwrite=False):
 
 
 def _export_vtu(meshio, results, selected, output, stem, overwrite):
-    single = output is not None and str(output).endswith(".vtu")
+    single = output is not None and str(output).lower().endswith(".vtu")
     if output is not None and not single and Path(output).suffix and not Path(output).is_dir():
         raise ResultsError(f"-o '{output}': --format vtu writes a folder of .vtu files, or one .vtu file for "
                            f"one frame; name a folder without an extension, or a .vtu file")
