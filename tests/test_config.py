@@ -385,7 +385,7 @@ def test_override_errors_name_the_override(tmp_path):
                           "as mesh.size[0]"),
         ("mesh.shape.x=1", "override 'mesh.shape.x=1': mesh.shape is 'box', not a mapping, so it has no key 'x'"),
         ("fixed[0].min=[0, 0, 0]", "override 'fixed[0].min=[0, 0, 0]': fixed has no items, so no fixed[0]; give "
-                                   "the whole list, e.g. fixed=[...]"),
+                                   "the whole list as fixed"),
         ("mesh[0]=1", "override 'mesh[0]=1': mesh is {'shape': 'box'"),
         ("fixed[-1].min=1", "override 'fixed[-1].min=1': 'fixed[-1]' is no key; a list item is named by its "
                             "number from 0"),

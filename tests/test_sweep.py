@@ -102,7 +102,13 @@ def mtimes(folder):
     ({"base": "bar.yaml", "parameters": {"material": [{}]}, "zip": {"material.density": [1e3]}},
      "material.density: overlaps material"),
     ({"base": "bar.yaml", "parameters": {"output.path": ["a.h5"]}}, "output.path: is set by the sweep"),
-    ({"base": "bar.yaml", "parameters": {"fixed.min": [[0, 0, 0]]}}, "vary fixed as a whole"),
+    ({"base": "bar.yaml", "parameters": {"fixed.min": [[0, 0, 0]]}},
+     "parameters.fixed.min: is not a scene key: fixed is a list; name an item, as fixed[0].min"),
+    ({"base": "bar.yaml", "parameters": {"gravity[0]": [0.0]}}, "gravity is not a list of sections"),
+    ({"base": "bar.yaml", "parameters": {"fixed[0].velocity": [[0, 0, 1]]}, "set": {"fixed": []}},
+     "fixed[0].velocity: overlaps fixed"),
+    ({"base": "bar.yaml", "parameters": {"fixed[1].velocity": [[0, 0, 1]]}},
+     "run 1 of 1 (velocity=0,0,1): fixed[1].velocity: fixed has 1 item, so no fixed[1]"),
     ({"base": "bar.yaml", "parameters": {"damping": [0.0, 1.0]}, "set": {"damping": 2.0}},
      "damping: is given twice (parameters, zip, set)"),
     ({"base": "bar.yaml", "parameters": {"damping": [0.0, 1.0]}, "set": {"time.durations": 2.0}},
@@ -119,6 +125,17 @@ def test_bad_sweep_files_get_one_line(tmp_path, sweep, message):
         expand_sweep(load_sweep(path), tmp_path / "out")
     assert message in str(error.value)
     assert "\n" not in str(error.value)
+
+
+def test_a_list_item_is_swept_by_its_number(tmp_path):
+    """``fixed[0].velocity``: a key of one item of a list, as the error messages name it."""
+    sweep = {"base": "bar.yaml", "parameters": {"fixed[0].velocity": [[0, 0, -0.01], [0, 0, -0.02]]},
+             "set": {"fixed[0].axes": ["z"]}}
+    runs = expand_sweep(load_sweep(write_sweep(tmp_path, sweep)), tmp_path / "out")
+    assert [run.scene.fixed[0].velocity for run in runs] == [(0.0, 0.0, -0.01), (0.0, 0.0, -0.02)]
+    assert all(run.scene.fixed[0].axes == ("z",) and run.scene.fixed[0].min == (-1.0e-6, -1, -1) for run in runs)
+    assert [run.parameters for run in runs] == [{"fixed[0].velocity": [0, 0, -0.01]},
+                                                {"fixed[0].velocity": [0, 0, -0.02]}]
 
 
 def test_bad_sweep_file_via_cli(tmp_path):

@@ -130,7 +130,7 @@ def apply_overrides(data: Mapping, overrides: Iterable[str]) -> dict:
         overrides = (overrides,)
     for override in overrides:
         keys, value = _parse_override(override)
-        _set_path(result, keys, value, override)
+        set_key_path(result, keys, value, f"override {override!r}")
     return result
 
 
@@ -151,17 +151,17 @@ def _parse_override(override: Any) -> tuple[list[str], Any]:
     return keys, value
 
 
-_LIST_ITEM = re.compile(r"^(?P<name>[^\[\]]+)\[(?P<index>\d+)\]$")
+LIST_ITEM = re.compile(r"^(?P<name>[^\[\]]+)\[(?P<index>\d+)\]$")
 
 
-def _set_path(data: dict, keys: list[str], value: Any, override: str) -> None:
-    """Set ``data[k0][k1]...[kn] = value``, creating mappings on the way; ``name[i]`` is item ``i``
-    of the list ``name``."""
+def set_key_path(data: dict, keys: list[str], value: Any, label: str) -> None:
+    """Set ``data[k0][k1]...[kn] = value`` in place, creating mappings on the way; a key ``name[i]``
+    is item ``i`` of the list ``name``.  ``ConfigError`` messages start with ``label`` (what set it)."""
     steps: list[Union[str, int]] = []
     for key in keys:
-        item = _LIST_ITEM.match(key)
+        item = LIST_ITEM.match(key)
         if item is None and ("[" in key or "]" in key):
-            raise ConfigError(f"override {override!r}: {key!r} is no key; a list item is named by its "
+            raise ConfigError(f"{label}: {key!r} is no key; a list item is named by its "
                               f"number from 0, as fixed[0]")
         steps += [item["name"].strip(), int(item["index"])] if item else [key]
     node: Any = data
@@ -169,34 +169,33 @@ def _set_path(data: dict, keys: list[str], value: Any, override: str) -> None:
         where = _dotted(steps[: depth + 1])
         if isinstance(step, int):                  # node is a list (checked below, one step up)
             if step >= len(node):
-                raise ConfigError(f"override {override!r}: {_dotted(steps[:depth])} has {len(node)} "
+                raise ConfigError(f"{label}: {_dotted(steps[:depth])} has {len(node)} "
                                   f"item{'s' if len(node) != 1 else ''}, so no {where}")
             child = node[step]
         else:
             child = node.get(step)
         item = f"{where}[{next_step}]"
         if isinstance(next_step, int) and child is None:
-            raise ConfigError(f"override {override!r}: {where} has no items, so no {item}; give the whole "
-                              f"list, e.g. {where}=[...]")
+            raise ConfigError(f"{label}: {where} has no items, so no {item}; give the whole list as {where}")
         if isinstance(next_step, int):
             if not isinstance(child, list):
-                raise ConfigError(f"override {override!r}: {where} is {_show(child)}, not a list, so no {item}")
+                raise ConfigError(f"{label}: {where} is {_show(child)}, not a list, so no {item}")
             child = list(child)
         elif child is None:
             child = {}
         elif isinstance(child, Mapping):
             child = dict(child)
         elif isinstance(child, list):
-            raise ConfigError(f"override {override!r}: {where} is a list, so it has no key {next_step!r}; "
+            raise ConfigError(f"{label}: {where} is a list, so it has no key {next_step!r}; "
                               f"name an item, as {where}[0]")
         else:
-            raise ConfigError(f"override {override!r}: {where} is {_show(child)}, not a mapping, "
+            raise ConfigError(f"{label}: {where} is {_show(child)}, not a mapping, "
                               f"so it has no key {next_step!r}")
         node[step] = child
         node = child
     last = steps[-1]
     if isinstance(last, int) and last >= len(node):
-        raise ConfigError(f"override {override!r}: {_dotted(steps[:-1])} has {len(node)} "
+        raise ConfigError(f"{label}: {_dotted(steps[:-1])} has {len(node)} "
                           f"item{'s' if len(node) != 1 else ''}, so no {_dotted(steps)}")
     node[last] = value
 

@@ -35,7 +35,7 @@ import yaml
 from pydantic import BaseModel, BeforeValidator, Field, ValidationError, model_validator
 
 from ..config import Scene, Section, parse_scene
-from ..config.loader import read_yaml, validation_message
+from ..config.loader import LIST_ITEM, read_yaml, set_key_path, validation_message
 from ..config.schema import fail
 from ..errors import ConfigError
 
@@ -128,8 +128,18 @@ def _section_of(annotation: Any):
     return None
 
 
+def _item_section_of(annotation: Any):
+    """The section class of the items of a list-of-sections field annotation (``fixed``), or None."""
+    if typing.get_origin(annotation) is tuple:
+        arguments = typing.get_args(annotation)
+        if arguments and isinstance(arguments[0], type) and issubclass(arguments[0], BaseModel):
+            return arguments[0]
+    return None
+
+
 def check_scene_key(key: str) -> None:
-    """Raise a validation error unless ``key`` (``material.youngs_modulus``) names a scene key or section."""
+    """Raise a validation error unless ``key`` (``material.youngs_modulus``, ``fixed[1].velocity``)
+    names a scene key or section; whether a list item exists is for the base scene to say."""
     model = Scene
     parts = key.split(".")
     for depth, part in enumerate(parts):
@@ -137,6 +147,19 @@ def check_scene_key(key: str) -> None:
         if model is None:
             fail(f"is not a scene key: {where} is a value or a list, not a section; vary {where} as a whole",
                  key=key, show_value=False)
+        item = LIST_ITEM.match(part)
+        if item is not None and item["name"] in model.model_fields:
+            model = _item_section_of(model.model_fields[item["name"]].annotation)
+            if model is None:
+                fail(f"is not a scene key: {'.'.join(parts[:depth] + [item['name']])} is not a list of sections",
+                     key=key, show_value=False)
+            continue
+        if part in model.model_fields and depth + 1 < len(parts):
+            items = _item_section_of(model.model_fields[part].annotation)
+            if items is not None:
+                named = ".".join(parts[: depth + 1])
+                fail(f"is not a scene key: {named} is a list; name an item, as {named}[0].{parts[depth + 1]}",
+                     key=key, show_value=False)
         if part not in model.model_fields:
             allowed = list(model.model_fields)
             close = difflib.get_close_matches(part, allowed, n=1)
@@ -237,7 +260,7 @@ class SweepFile(Section):
                          f"and must have equal length", key=f"zip.{key}", show_value=False)
         keys = [*self.parameters, *self.zip, *self.set]
         for a, b in itertools.permutations(keys, 2):
-            if a == b or b.startswith(a + "."):
+            if a == b or b.startswith((a + ".", a + "[")):
                 what = "is given twice (parameters, zip, set)" if a == b else f"overlaps {a}"
                 fail(f"{what}; each scene key may be varied once", key=b, show_value=False)
         return self
@@ -361,14 +384,10 @@ def labels_for(keys) -> dict:
 
 
 def _with_value(data: Mapping, keys: list, value: Any) -> dict:
-    """A copy of ``data`` with ``data[k0][k1]...[kn] = value`` (copies along the path; ``data`` is untouched)."""
-    result = dict(data)
-    head = keys[0]
-    if len(keys) == 1:
-        result[head] = copy.deepcopy(value)
-    else:
-        child = result.get(head)
-        result[head] = _with_value(child if isinstance(child, Mapping) else {}, keys[1:], value)
+    """A copy of ``data`` with ``data[k0][k1]...[kn] = value`` (``name[i]``: item ``i`` of the list
+    ``name``); ``data`` is untouched."""
+    result = copy.deepcopy(dict(data))
+    set_key_path(result, keys, copy.deepcopy(value), ".".join(keys))
     return result
 
 
@@ -400,10 +419,10 @@ def expand_sweep(sweep: Sweep, output_dir: Union[str, Path]) -> list[Run]:
                               f"give them values that differ in their first 17 digits")
         names[name] = index
         data = sweep.base
-        for key, value in [*sweep.fixed.items(), *point.items()]:
-            data = _with_value(data, key.split("."), value)
-        data = _with_value(data, ["output", "path"], str(output_dir / f"{name}.h5"))
         try:
+            for key, value in [*sweep.fixed.items(), *point.items()]:
+                data = _with_value(data, key.split("."), value)
+            data = _with_value(data, ["output", "path"], str(output_dir / f"{name}.h5"))
             scene = parse_scene(data, sweep.base_dir)
         except ConfigError as error:
             raise ConfigError(f"run {index + 1} of {count} ({name}): {error}") from None
