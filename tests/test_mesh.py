@@ -517,6 +517,28 @@ def test_input_clash_finds_an_xdmf_files_data_file(tmp_path):
     assert input_clash(["x.vtu", tmp_path / "s.yaml"], [scene, ""]) == (tmp_path / "s.yaml", scene, scene)
 
 
+def test_a_mesh_files_hash_covers_the_hdf5_files_an_xdmf_mesh_names(tmp_path):
+    """What a reader gets: the file's bytes, and an XDMF file's named HDF5 files (any name)."""
+    import hashlib
+
+    from softsim.io.files import content_sha256, read_files
+
+    points, tets = small_mesh()
+    meshio.write(tmp_path / "m.vtu", meshio.Mesh(points, [("tetra", tets)]))
+    assert content_sha256(tmp_path / "m.vtu") == hashlib.sha256((tmp_path / "m.vtu").read_bytes()).hexdigest()
+    meshio.write(tmp_path / "m.xdmf", meshio.Mesh(points, [("tetra", tets)]))
+    (tmp_path / "m.h5").rename(tmp_path / "arrays.h5")
+    (tmp_path / "m.xdmf").write_text((tmp_path / "m.xdmf").read_text().replace("m.h5:", "arrays.h5:"))
+    assert read_files(tmp_path / "m.xdmf") == [tmp_path / "m.xdmf", tmp_path / "arrays.h5"]
+    before = content_sha256(tmp_path / "m.xdmf")
+    with h5py.File(tmp_path / "arrays.h5", "a") as f:
+        f["data0"][0, 0] += 1e-3
+    assert content_sha256(tmp_path / "m.xdmf") != before
+    (tmp_path / "arrays.h5").unlink()
+    with pytest.raises(FileNotFoundError):
+        content_sha256(tmp_path / "m.xdmf")
+
+
 def test_check_mesh_output_names_the_data_file_that_would_replace_an_input(tmp_path):
     from softsim.mesh.write import check_mesh_output
 

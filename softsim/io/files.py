@@ -38,13 +38,29 @@ def describe_input(input_file, name):
     return f"'{input_file}' (the data of '{name}')"
 
 
+def read_files(path):
+    """The files a reader of the mesh file ``path`` reads: ``[path]``, and for an XDMF file the
+    HDF5 files its ``Format="HDF"`` data items name (``beam.h5:/data0``, relative to its folder),
+    or, where it cannot be parsed, the ``.h5`` beside it (``with_data_file``) if that exists."""
+    path = Path(path)
+    if path.suffix.lower() not in XDMF_SUFFIXES:
+        return [path]
+    import xml.etree.ElementTree as ElementTree
+
+    try:
+        root = ElementTree.parse(path).getroot()
+    except ElementTree.ParseError:
+        return [file for file in with_data_file(path) if file == path or file.is_file()]
+    named = {item.text.strip().split(":", 1)[0] for item in root.iter("DataItem")
+             if item.get("Format") == "HDF" and item.text and item.text.strip()}
+    return [path, *(path.parent / name for name in sorted(named))]
+
+
 def content_sha256(path):
-    """SHA-256 (hex) of the bytes ``path`` holds, with an XDMF file's ``.h5`` data file beside it
-    (``with_data_file``) where that exists: what a reader of ``path`` gets."""
+    """SHA-256 (hex) of the bytes of ``read_files(path)`` one after the other: what a reader of the
+    mesh file gets (of a file that is not XDMF, ``sha256sum``'s)."""
     digest = hashlib.sha256()
-    for file in with_data_file(path):
-        if file != Path(path) and not file.is_file():
-            continue
+    for file in read_files(path):
         with open(file, "rb") as f:
             for chunk in iter(lambda: f.read(1 << 20), b""):
                 digest.update(chunk)
