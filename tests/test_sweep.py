@@ -104,7 +104,10 @@ def mtimes(folder):
     ({"base": "bar.yaml", "parameters": {"output.path": ["a.h5"]}}, "output.path: is set by the sweep"),
     ({"base": "bar.yaml", "parameters": {"fixed.min": [[0, 0, 0]]}},
      "parameters.fixed.min: is not a scene key: fixed is a list; name an item, as fixed[0].min"),
-    ({"base": "bar.yaml", "parameters": {"gravity[0]": [0.0]}}, "gravity is not a list of sections"),
+    ({"base": "bar.yaml", "parameters": {"material[0]": [0.0]}}, "material[0]: is not a scene key: material is not a list"),
+    ({"base": "bar.yaml", "parameters": {"gravity[0].x": [0.0]}}, "gravity[0] is a value, not a section"),
+    ({"base": "bar.yaml", "parameters": {"gravity[0]": [0.0]}},
+     "run 1 of 1 (gravity_0=0): gravity[0]: gravity has no items, so no gravity[0]; give the whole list as gravity"),
     ({"base": "bar.yaml", "parameters": {"fixed[0].velocity": [[0, 0, 1]]}, "set": {"fixed": []}},
      "fixed[0].velocity: overlaps fixed"),
     ({"base": "bar.yaml", "parameters": {"fixed[1].velocity": [[0, 0, 1]]}},
@@ -136,6 +139,10 @@ def test_a_list_item_is_swept_by_its_number(tmp_path):
     assert all(run.scene.fixed[0].axes == ("z",) and run.scene.fixed[0].min == (-1.0e-6, -1, -1) for run in runs)
     assert [run.parameters for run in runs] == [{"fixed[0].velocity": [0, 0, -0.01]},
                                                 {"fixed[0].velocity": [0, 0, -0.02]}]
+    lengths = {"base": "bar.yaml", "parameters": {"mesh.size[0]": [0.3, 0.6]}}       # a vector's component
+    runs = expand_sweep(load_sweep(write_sweep(tmp_path, lengths)), tmp_path / "out")
+    assert [run.scene.mesh.size for run in runs] == [(0.3, 0.1, 0.1), (0.6, 0.1, 0.1)]
+    assert [run.path.name for run in runs] == ["size_0=0.3.h5", "size_0=0.6.h5"]
 
 
 def test_bad_sweep_file_via_cli(tmp_path):

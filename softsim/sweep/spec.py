@@ -137,9 +137,18 @@ def _item_section_of(annotation: Any):
     return None
 
 
+def _is_value_list(annotation: Any) -> bool:
+    """Whether a field annotation is a list of values (a vector, optional or not)."""
+    origin = typing.get_origin(annotation)
+    if origin is Annotated:
+        return _is_value_list(typing.get_args(annotation)[0])
+    return origin is tuple or (origin is Union and any(_is_value_list(a) for a in typing.get_args(annotation)))
+
+
 def check_scene_key(key: str) -> None:
-    """Raise a validation error unless ``key`` (``material.youngs_modulus``, ``fixed[1].velocity``)
-    names a scene key or section; whether a list item exists is for the base scene to say."""
+    """Raise a validation error unless ``key`` (``material.youngs_modulus``, ``fixed[1].velocity``,
+    ``mesh.size[0]``) names a scene key or section; whether a list item exists is for the base
+    scene to say."""
     model = Scene
     parts = key.split(".")
     for depth, part in enumerate(parts):
@@ -149,9 +158,15 @@ def check_scene_key(key: str) -> None:
                  key=key, show_value=False)
         item = LIST_ITEM.match(part)
         if item is not None and item["name"] in model.model_fields:
-            model = _item_section_of(model.model_fields[item["name"]].annotation)
+            annotation = model.model_fields[item["name"]].annotation
+            model = _item_section_of(annotation)
+            if model is None and _is_value_list(annotation):
+                if depth + 1 == len(parts):
+                    return                  # a component of a vector (mesh.size[0]); the base says if it exists
+                fail(f"is not a scene key: {'.'.join(parts[:depth + 1])} is a value, not a section",
+                     key=key, show_value=False)
             if model is None:
-                fail(f"is not a scene key: {'.'.join(parts[:depth] + [item['name']])} is not a list of sections",
+                fail(f"is not a scene key: {'.'.join(parts[:depth] + [item['name']])} is not a list",
                      key=key, show_value=False)
             continue
         if part in model.model_fields and depth + 1 < len(parts):
@@ -378,8 +393,9 @@ def run_name(parameters: Mapping, labels: Mapping) -> str:
 
 
 def labels_for(keys) -> dict:
-    """Each swept key's label in run names: its last part, or the whole key where two would clash."""
-    last = [key.rsplit(".", 1)[-1] for key in keys]
+    """Each swept key's label in run names: its last part (an item number as ``_0``: ``size_0``), or
+    the whole key where two would clash."""
+    last = [re.sub(r"\[(\d+)\]", r"_\1", key.rsplit(".", 1)[-1]) for key in keys]
     return {key: short if last.count(short) == 1 else key for key, short in zip(keys, last)}
 
 
