@@ -165,7 +165,9 @@ def prepare(scene, mesh=None, resuming=False):
     if scene.time.dt in ("auto", "exact"):
         plan = plan_time(scene.time.duration, scene.output.frame_interval, max_dt=dt)
     else:
-        plan = plan_time(scene.time.duration, scene.output.frame_interval, dt=dt)
+        step_text = (f"time.dt = {scene.time.dt:g} s, split into {substeps} sub-steps of {dt:.4g} s,"
+                     if substeps > 1 else None)
+        plan = plan_time(scene.time.duration, scene.output.frame_interval, dt=dt, step_text=step_text)
     return Prepared(scene=scene, model=model, plan=plan, dt_estimate=dt_estimate, safe_dt=safe_dt,
                     substeps=substeps, wave_speed=wave_speed)
 

@@ -258,6 +258,15 @@ def test_auto_dt_fits_whole_steps_per_frame_and_respects_the_stable_step(scene):
     assert all(b - a == steps_per_frame for a, b in zip(plan.frame_steps[:-2], plan.frame_steps[1:-1]))
 
 
+def test_a_split_dt_that_does_not_fit_the_frames_is_named_with_its_sub_steps(scene, caplog):
+    s = scene(time={"duration": 0.05, "dt": 0.0123}, output={"frame_interval": 0.01})     # split (substep)
+    with caplog.at_level("WARNING", logger="softsim"):
+        prepared = prepare(s)
+    assert prepared.substeps > 1
+    assert (f"time.dt = 0.0123 s, split into {prepared.substeps} sub-steps of {prepared.plan.dt:.4g} s, does not "
+            f"fit output.frame_interval = 0.01 s") in caplog.text
+
+
 @pytest.mark.parametrize("dt, frame_interval, duration", [
     ("auto", 0.02, 0.105),   # duration not a whole number of frames: a last, shorter frame
     ("auto", 0.025, 0.1),

@@ -185,3 +185,9 @@ def test_an_unknown_scene_is_one_line_error(tmp_path):
     result = CliRunner().invoke(cli, ["stability", "--quick", "-o", str(tmp_path / "x"), "--scene", "nope"])
     assert result.exit_code != 0
     assert "unknown catalogue scene nope" in result.output and "Traceback" not in result.output
+
+
+def test_an_output_folder_that_cannot_be_written_is_refused_before_any_run(tmp_path):
+    (tmp_path / "file").write_text("")
+    with pytest.raises(ConfigError, match=r"^-o = '.*file/out': cannot write there"):
+        stability_report(tmp_path / "file" / "out", quick=True)

@@ -18,6 +18,7 @@ import pytest
 from softsim.verify import references as ref
 from softsim.verify.cases import CASES, AxialVibration, Cantilever, Energy, Traction
 from softsim.verify.driver import with_lame, with_rest_state
+from softsim.errors import ConfigError
 from softsim.verify.report import COLUMNS, ladders, pareto_front, verify_report
 
 ROTATION_INVARIANT = ("stvk", "corotated", "neohookean")
@@ -371,3 +372,13 @@ def test_cli_replot_redraws_from_the_table_without_running(report, tmp_path):
     assert f"(redrawn; the runs took {report.wall_time_s:.0f} s)" in result.output    # not as its own time
     missing = CliRunner().invoke(cli, ["verify", "--replot", "-o", str(tmp_path / "nothing")])
     assert missing.exit_code != 0 and "verify.csv" in missing.output
+
+
+def test_a_report_that_cannot_be_written_or_has_nothing_to_run_is_refused_before_any_run(tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    with pytest.raises(ConfigError, match=r"^-o = '.*file/out': cannot write there \(Not a directory\)$"):
+        verify_report(blocker / "out", quick=True, cases=["patch"])
+    with pytest.raises(ConfigError, match=r"^--precision float32: corotated steps in float64 only"):
+        verify_report(tmp_path / "v", quick=True, cases=["patch"], models=["corotated"], precisions=["float32"])
+    assert not (tmp_path / "v").exists()

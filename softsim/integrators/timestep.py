@@ -63,14 +63,15 @@ class TimePlan:
         return tuple(s * self.dt for s in self.frame_steps)
 
 
-def plan_time(duration, frame_interval, dt=None, max_dt=None):
+def plan_time(duration, frame_interval, dt=None, max_dt=None, step_text=None):
     """A ``TimePlan`` for ``duration`` [s] with a frame every ``frame_interval`` [s].
 
     With ``max_dt`` (``auto``, ``exact``), dt is the largest step not above ``max_dt`` that fits a
     whole number of times into ``frame_interval`` (into ``duration``, where that is shorter: one
     frame at the end).  With a given ``dt``, frames fall on the nearest whole number of steps to
-    ``frame_interval``, with a warning where that moves them.  The last frame is at the end of
-    the run, ``total_steps * dt >= duration``.
+    ``frame_interval``, with a warning where that moves them (``step_text`` names the step there,
+    default ``time.dt = <dt> s``).  The last frame is at the end of the run, ``total_steps * dt >=
+    duration``.
     """
     frames = duration / frame_interval
     if not frames <= MAX_FRAMES:
@@ -83,9 +84,9 @@ def plan_time(duration, frame_interval, dt=None, max_dt=None):
     else:
         steps_per_frame = max(1, round(frame_interval / dt))
         if abs(steps_per_frame * dt - frame_interval) > 1e-9 * frame_interval and frame_interval < duration:
-            log.warning("time.dt = %g s does not fit output.frame_interval = %g s a whole number of times: "
-                        "frames come every %d steps, %.6g s", dt, frame_interval, steps_per_frame,
-                        steps_per_frame * dt)
+            log.warning("%s does not fit output.frame_interval = %g s a whole number of times: "
+                        "frames come every %d steps, %.6g s", step_text or f"time.dt = {dt:g} s", frame_interval,
+                        steps_per_frame, steps_per_frame * dt)
     if not duration / dt <= MAX_STEPS:
         raise ConfigError(f"time.duration = {duration:g}: with dt = {dt:.3g} s that is {duration / dt:.3g} steps; "
                           f"at most {MAX_STEPS:.0e} are allowed")

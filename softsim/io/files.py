@@ -3,7 +3,10 @@ surprise: meshio keeps an XDMF file's arrays in an HDF5 file of the same stem be
 writing ``beam.xdmf`` also writes ``beam.h5`` (and reading it reads ``beam.h5``)."""
 
 import hashlib
+import tempfile
 from pathlib import Path
+
+from ..errors import ConfigError
 
 XDMF_SUFFIXES = (".xdmf", ".xmf")
 
@@ -65,3 +68,16 @@ def content_sha256(path):
             for chunk in iter(lambda: f.read(1 << 20), b""):
                 digest.update(chunk)
     return digest.hexdigest()
+
+
+def writable_folder(folder, option="-o"):
+    """``folder`` as a ``Path``, made if needed and checked writable (a file written and removed),
+    before a report's runs: ``ConfigError`` naming ``option`` and the reason otherwise."""
+    folder = Path(folder)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=folder):
+            pass
+    except OSError as exc:
+        raise ConfigError(f"{option} = '{folder}': cannot write there ({exc.strerror or exc})") from None
+    return folder

@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import PLOT_EXTRA, ConfigError, MissingDependencyError, SoftsimError
+from ..io.files import writable_folder
 from ..io.hdf5 import frames_written, read_resume_state
 from .catalogue import MODELS, SCENE_NAMES, catalogue
 from .limits import MESH_KINDS, LimitCase, limit_cases, limit_meshes, measure_limit, verdicts
@@ -498,7 +499,7 @@ def stability_report(out_dir, quick=False, scenes=None, models=MODELS, cases=Non
     if unknown:
         raise ConfigError(f"unknown material model {', '.join(unknown)} (known: {', '.join(MODELS)})")
     _check_scene_names(scenes)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    writable_folder(out_dir)
     rows = run_catalogue(out_dir, quick=quick, scenes=scenes, models=models, progress=progress)
     csv_path = write_csv(rows, out_dir / "stability.csv")
     if cases is None:

@@ -23,8 +23,9 @@ import time as _time
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..config.schema import PRECISIONS
+from ..config.schema import FLOAT32_MODELS, PRECISIONS
 from ..errors import PLOT_EXTRA, ConfigError, MissingDependencyError
+from ..io.files import writable_folder
 from . import references as ref
 from .cases import CASES, MODELS, VerifyRow
 
@@ -416,10 +417,14 @@ def verify_report(out_dir, quick=False, cases=None, models=MODELS, plot=True, pr
     bad = [p for p in precisions if p not in PRECISIONS]
     if bad or not precisions:
         raise ConfigError(f"precision {', '.join(bad) or '(none)'}: must be one or more of {', '.join(PRECISIONS)}")
+    if tuple(precisions) == ("float32",) and not set(models) & set(FLOAT32_MODELS):
+        raise ConfigError(f"--precision float32: {', '.join(models)} steps in float64 only; float32 is available "
+                          f"for {', '.join(FLOAT32_MODELS)}")
     import numba
 
     if threads is not None and not 1 <= threads <= numba.config.NUMBA_NUM_THREADS:
         raise ConfigError(f"threads = {threads}: must be between 1 and {numba.config.NUMBA_NUM_THREADS}")
+    writable_folder(out_dir)            # before the runs, not after them
     previous = numba.get_num_threads()
     numba.set_num_threads(threads or previous)
     try:
