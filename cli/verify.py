@@ -35,6 +35,11 @@ def verify(quick, cases, models, precisions, out_dir, threads, replot):
       softsim verify --replot -o verify
     """
     if replot:
+        chosen = [name for name, given in (("--case", cases), ("--model", models), ("--precision", precisions),
+                                           ("--threads", threads)) if given]
+        if chosen:
+            raise click.UsageError(f"--replot runs nothing, so {', '.join(chosen)} would not apply; redraw the "
+                                   f"whole table, or run again with them")
         report = replot_report(out_dir, quick=quick)
     else:
         report = verify_report(out_dir, quick=quick, cases=cases or None, models=models or MODELS, threads=threads,

@@ -382,3 +382,14 @@ def test_a_report_that_cannot_be_written_or_has_nothing_to_run_is_refused_before
     with pytest.raises(ConfigError, match=r"^--precision float32: corotated steps in float64 only"):
         verify_report(tmp_path / "v", quick=True, cases=["patch"], models=["corotated"], precisions=["float32"])
     assert not (tmp_path / "v").exists()
+
+
+def test_replot_of_a_table_that_is_not_verifys_is_one_line(tmp_path):
+    from softsim.verify.report import replot_report
+
+    (tmp_path / "verify.csv").write_text("case,quantity\npatch,x\n")
+    with pytest.raises(ConfigError, match=r"verify.csv': not a table softsim verify wrote \(no column model, "):
+        replot_report(tmp_path)
+    (tmp_path / "verify.csv").write_text(",".join(COLUMNS) + "\n" + ",".join(["x"] * len(COLUMNS)) + "\n")
+    with pytest.raises(ConfigError, match=r"verify.csv' line 2: could not convert string to float: 'x'"):
+        replot_report(tmp_path)

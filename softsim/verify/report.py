@@ -495,21 +495,35 @@ def replot_report(out_dir, quick=False):
 
 
 def read_csv(path):
-    """The ``VerifyRow``s of a ``verify.csv``."""
+    """The ``VerifyRow``s of a ``verify.csv``; ``ConfigError`` naming the line of one that is not a row."""
     def number(text):
         return float(text) if text != "" else None
 
     rows = []
     with open(path, newline="") as stream:
-        for d in csv.DictReader(stream):
-            rows.append(VerifyRow(
-                case=d["case"], quantity=d["quantity"], model=d["model"], precision=d["precision"],
-                ladder=d["ladder"], refinement=float(d["refinement"]), element_size=float(d["element_size_m"]),
-                tets=int(d["tets"]), dt=float(d["dt_s"]), steps=int(d["steps"]), wall_time_s=float(d["wall_time_s"]),
-                value=float(d["value"]), reference_value=float(d["reference_value"]), error=float(d["error"]),
-                reference=d["reference"], order=number(d["order"]), order_self=number(d["order_self"]),
-                note=d["note"], reference_uncertainty=float(d["reference_uncertainty"])))
+        reader = csv.DictReader(stream)
+        missing = [column for column in COLUMNS if column not in (reader.fieldnames or ())]
+        if missing:
+            raise ConfigError(f"'{path}': not a table softsim verify wrote (no column {', '.join(missing)})")
+        for d in reader:
+            if None in d.values() or None in d:
+                raise ConfigError(f"'{path}' line {reader.line_num}: not {len(COLUMNS)} columns")
+            try:
+                rows.append(_row_of(d, number))
+            except ValueError as exc:
+                raise ConfigError(f"'{path}' line {reader.line_num}: {exc}") from None
     return rows
+
+
+def _row_of(d, number):
+    """A ``VerifyRow`` from a ``verify.csv`` row ``d`` (a dict of text)."""
+    return VerifyRow(
+        case=d["case"], quantity=d["quantity"], model=d["model"], precision=d["precision"],
+        ladder=d["ladder"], refinement=float(d["refinement"]), element_size=float(d["element_size_m"]),
+        tets=int(d["tets"]), dt=float(d["dt_s"]), steps=int(d["steps"]), wall_time_s=float(d["wall_time_s"]),
+        value=float(d["value"]), reference_value=float(d["reference_value"]), error=float(d["error"]),
+        reference=d["reference"], order=number(d["order"]), order_self=number(d["order_self"]),
+        note=d["note"], reference_uncertainty=float(d["reference_uncertainty"]))
 
 
 __all__ = ["BUDGETS", "COLUMNS", "VerifyReport", "budget_answers", "fitted_orders", "format_table", "pareto_front",
