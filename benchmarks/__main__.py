@@ -82,7 +82,7 @@ def main(argv=None):
     rows = judged + rows
     machine = (f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, numba {numba.__version__} "
                f"({numba.threading_layer()} layer), {threads} threads")
-    paths = report.write(rows, args.output, machine, quick)
+    paths = report.write(rows, args.output, machine, quick, sections=args.sections)
     suite.log(f"done in {time.perf_counter() - started:.0f} s: " + ", ".join(paths))
     return 0
 

@@ -21,7 +21,10 @@ def _cell(value):
     return str(value).replace("|", "/")
 
 
-def write(rows, folder, machine, quick):
+def write(rows, folder, machine, quick, sections=None):
+    """``results.csv``, ``results.md`` and ``throughput.png`` (with throughput rows) in ``folder``, in
+    place of an earlier run's; sections: the names of the sections run, when not all (said in the
+    markdown's first line)."""
     os.makedirs(folder, exist_ok=True)
     paths = [os.path.join(folder, "results.csv"), os.path.join(folder, "results.md")]
     with open(paths[0], "w", newline="") as f:
@@ -30,7 +33,8 @@ def write(rows, folder, machine, quick):
         writer.writerows(rows)
     with open(paths[1], "w") as f:
         f.write(f"# softsim benchmarks\n\n{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, {machine}"
-                f"{' (--quick)' if quick else ''}. Rates: medians of interleaved rounds in one process; "
+                f"{' (--quick)' if quick else ''}{'; sections ' + ', '.join(sections) + ' only' if sections else ''}"
+                f". Rates: medians of interleaved rounds in one process; "
                 f"ratios: medians of per-round ratios. Regenerate: `python -m benchmarks`.\n")
         for section in dict.fromkeys(r["section"] for r in rows):
             if section == "targets":               # the issue's targets, judged (``targets.py``)
@@ -44,6 +48,8 @@ def write(rows, folder, machine, quick):
     png = plot(rows, os.path.join(folder, "throughput.png"), machine)
     if png:
         paths.append(png)
+    elif os.path.exists(os.path.join(folder, "throughput.png")):     # an earlier run's: not this table's
+        os.remove(os.path.join(folder, "throughput.png"))
     return paths
 
 
