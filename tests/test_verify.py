@@ -393,3 +393,24 @@ def test_replot_of_a_table_that_is_not_verifys_is_one_line(tmp_path):
     (tmp_path / "verify.csv").write_text(",".join(COLUMNS) + "\n" + ",".join(["x"] * len(COLUMNS)) + "\n")
     with pytest.raises(ConfigError, match=r"verify.csv' line 2: could not convert string to float: 'x'"):
         replot_report(tmp_path)
+
+
+def test_the_cheapest_run_for_a_budget_does_not_follow_timer_noise():
+    """Runs within TIME_NOISE of the fastest are equals: the least work among them is the answer."""
+    from softsim.verify.cases import VerifyRow
+    from softsim.verify.report import TIME_NOISE, budget_answers
+
+    def row(tets, steps, wall, error):
+        return VerifyRow(case="axial-vibration", quantity="period", model="stvk", precision="float64",
+                         ladder="element_size", refinement=1.0, element_size=0.1, tets=tets, dt=1e-4, steps=steps,
+                         wall_time_s=wall, value=1.0, reference_value=1.0, error=error, reference="theory",
+                         order=None, order_self=None, note="", reference_uncertainty=0.0)
+
+    less_work = row(400, 604, 0.030, 2.7e-4)             # timed slowly once
+    more_work = row(800, 1204, 0.0207, 3.1e-4)
+    too_slow = row(100, 100, 0.0207 * (1 + TIME_NOISE) * 1.01, 5e-4)
+    lines = budget_answers([more_work, less_work, too_slow], "axial-vibration", "period", budgets=(1e-3,))
+    assert len(lines) == 1 and "604 steps" in lines[0], lines
+    lines = budget_answers([more_work, row(400, 604, 0.0207 * 3, 2.7e-4)], "axial-vibration", "period",
+                           budgets=(1e-3,))
+    assert "1204 steps" in lines[0], lines                # three times as slow is no noise
