@@ -199,7 +199,7 @@ PLOT_FLOOR = 1e-17
 def plot_case(case, rows, path):
     """Error against wall time for one case (one panel per quantity), PNG at ``path``."""
     Figure, FigureCanvasAgg = _matplotlib()
-    from matplotlib.ticker import LogFormatterSciNotation, LogLocator, NullFormatter
+    from matplotlib.ticker import FixedLocator, FuncFormatter, LogFormatterSciNotation, LogLocator, NullFormatter
 
     quantities = []
     for r in rows:
@@ -246,15 +246,14 @@ def plot_case(case, rows, path):
             shown.add(text)
             ax.annotate(text, (times[i], errors[i]), xytext=(6, -10), textcoords="offset points", fontsize=6,
                         color="0.25")
-        for budget in BUDGETS:
-            if min(errors) < budget * 30 and max(errors) > budget / 30:
-                ax.axhline(budget, color="0.6", lw=0.8, ls=":")
-                ax.annotate(f"{budget * 100:g} %", (1.0, budget), xycoords=("axes fraction", "data"), ha="right",
-                            va="bottom", fontsize=8, color="0.4")
         ax.set_xscale("log")
         ax.set_yscale("log")
         decades = math.log10(max(times) / min(times)) if min(times) > 0.0 else 9.0
-        if decades < 2.5:                 # short ranges: label 1, 2, 5 x 10^k, not only the powers of ten
+        if decades < 0.7:                 # under a decade: three labels at the ends and between, not crowded
+            ticks = [min(times), math.sqrt(min(times) * max(times)), max(times)] if decades > 0 else [min(times)]
+            ax.xaxis.set_major_locator(FixedLocator(ticks))
+            ax.xaxis.set_major_formatter(FuncFormatter(lambda value, _: f"{value:.2g}"))
+        elif decades < 2.5:               # short ranges: label 1, 2, 5 x 10^k, not only the powers of ten
             ax.xaxis.set_major_locator(LogLocator(base=10.0, subs=(1.0, 2.0, 5.0)))
             ax.xaxis.set_major_formatter(LogFormatterSciNotation(labelOnlyBase=False))
         ax.xaxis.set_minor_formatter(NullFormatter())
@@ -262,6 +261,12 @@ def plot_case(case, rows, path):
         if high < 30.0 * low:             # at least three decades: round-off noise must not look like a trend
             centre = math.sqrt(low * high)
             ax.set_ylim(centre / 30.0, centre * 30.0)
+        bottom, top = ax.get_ylim()
+        for budget in BUDGETS:
+            if bottom < budget < top:     # a budget line and its label only where they fall inside the axes
+                ax.axhline(budget, color="0.6", lw=0.8, ls=":")
+                ax.annotate(f"{budget * 100:g} %", (1.0, budget), xycoords=("axes fraction", "data"), ha="right",
+                            va="bottom", fontsize=8, color="0.4")
         ax.grid(True, which="major", alpha=0.3)
         ax.set_xlabel("wall time of the time steps [s]")
         references = sorted({r.reference for r in mine})
