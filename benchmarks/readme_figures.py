@@ -4,9 +4,9 @@
 
 Runs the example scenes and the commands the README shows: the bouncing cube as a GIF and the
 cantilever's von Mises frame (``softsim render``), the cantilever sweep's plot (``softsim sweep
---plot``), the cantilever's error against wall time (``softsim verify``; about 10 minutes on
-one core, ``--quick`` for the quick ladder in about one) and the stability report's plot of the
-measured limit against ``dt: auto`` (``softsim stability --quick``, about 2 minutes).  The benchmark table and plot come
+--plot``), the cantilever's error against wall time (``softsim verify --case cantilever`` on one
+thread: 91 s on an idle AMD EPYC, ``--quick`` for the quick ladder) and the stability report's
+plot of the measured limit against ``dt: auto`` (``softsim stability --quick``, about a minute).  The benchmark table and plot come
 from ``python -m benchmarks`` (benchmarks/results/).  Needs ``pip install -e ".[plot,sweep]"``.
 """
 
