@@ -209,9 +209,11 @@ def features(target, seconds, repeats, threads):
     rows = []
     for name in FEATURES:
         ratio = median_ratio(rates, name, "bare")
-        log(f"  {name}: {statistics.median(rates[name]):.1f} ({ratio:.3f} of bare)")
+        rounds = sorted(x / y for x, y in zip(rates[name], rates["bare"]))
+        spread = f"rounds {rounds[0]:.3f}-{rounds[-1]:.3f}" if name != "bare" else ""   # a shared host's noise
+        log(f"  {name}: {statistics.median(rates[name]):.1f} ({ratio:.3f} of bare{'; ' + spread if spread else ''})")
         rows.append(row("features", name, runners[name].tet_count, "softsim", threads, statistics.median(rates[name]),
-                        ratio, "bare"))
+                        ratio, "bare", note=spread))
     return rows
 
 
