@@ -558,7 +558,8 @@ def run_file_difference(stored, scene):
         try:
             now = content_sha256(scene.mesh.file)
         except OSError as exc:
-            raise ConfigError(f"mesh.file = '{scene.mesh.file}': cannot be read ({exc.strerror or exc})") from None
+            what = f"{exc.filename}: " if exc.filename and str(exc.filename) != str(scene.mesh.file) else ""
+            raise ConfigError(f"mesh.file = '{scene.mesh.file}': cannot be read ({what}{exc.strerror or exc})") from None
         if now != stored["mesh_file_sha256"]:
             key = (f"mesh.file: the content of '{scene.mesh.file}' changed (SHA-256 "
                    f"{stored['mesh_file_sha256'][:12]}... -> {now[:12]}...)")

@@ -534,6 +534,11 @@ def test_a_mesh_files_hash_covers_the_hdf5_files_an_xdmf_mesh_names(tmp_path):
     with h5py.File(tmp_path / "arrays.h5", "a") as f:
         f["data0"][0, 0] += 1e-3
     assert content_sha256(tmp_path / "m.xdmf") != before
+    (tmp_path / "elsewhere").mkdir()                  # a link: its data beside the file it points to, as meshio
+    (tmp_path / "elsewhere" / "link.xdmf").symlink_to(tmp_path / "m.xdmf")
+    assert read_files(tmp_path / "elsewhere" / "link.xdmf")[1:] == [tmp_path / "arrays.h5"]
+    (tmp_path / "odd.xdmf").write_bytes(b'<?xml version="1.0" encoding="bogus"?><Xdmf/>')   # unparsable: itself
+    assert read_files(tmp_path / "odd.xdmf") == [tmp_path / "odd.xdmf"]
     (tmp_path / "arrays.h5").unlink()
     with pytest.raises(FileNotFoundError):
         content_sha256(tmp_path / "m.xdmf")

@@ -28,7 +28,7 @@ from softsim.sweep import expand_sweep, load_sweep, parse_sweep, plot_summary, r
 from softsim.sweep.runner import (build_meshes, import_distributed, local_client, plan_runs, summary_columns,
                                   write_summary)
 from softsim.sweep import runner
-from softsim.sweep.spec import format_value, run_name
+from softsim.sweep.spec import format_value, labels_for, run_name
 
 pytest.importorskip("distributed")
 
@@ -139,6 +139,11 @@ def test_a_list_item_is_swept_by_its_number(tmp_path):
     assert all(run.scene.fixed[0].axes == ("z",) and run.scene.fixed[0].min == (-1.0e-6, -1, -1) for run in runs)
     assert [run.parameters for run in runs] == [{"fixed[0].velocity": [0, 0, -0.01]},
                                                 {"fixed[0].velocity": [0, 0, -0.02]}]
+    assert labels_for(["fixed[0].min[1]", "mesh.min[1]", "fixed[0].velocity"]) == {
+        "fixed[0].min[1]": "fixed_0.min_1", "mesh.min[1]": "mesh.min_1", "fixed[0].velocity": "velocity"}
+    twice = {"base": "bar.yaml", "parameters": {"mesh.size[0]": [0.3]}, "set": {"mesh.size[00]": 0.6}}
+    with pytest.raises(ConfigError, match=r"mesh.size\[0\]: is given twice"):
+        load_sweep(write_sweep(tmp_path, twice))
     lengths = {"base": "bar.yaml", "parameters": {"mesh.size[0]": [0.3, 0.6]}}       # a vector's component
     runs = expand_sweep(load_sweep(write_sweep(tmp_path, lengths)), tmp_path / "out")
     assert [run.scene.mesh.size for run in runs] == [(0.3, 0.1, 0.1), (0.6, 0.1, 0.1)]

@@ -43,8 +43,9 @@ def describe_input(input_file, name):
 
 def read_files(path):
     """The files a reader of the mesh file ``path`` reads: ``[path]``, and for an XDMF file the
-    HDF5 files its ``Format="HDF"`` data items name (``beam.h5:/data0``, relative to its folder),
-    or, where it cannot be parsed, the ``.h5`` beside it (``with_data_file``) if that exists."""
+    files its data items name as meshio finds them: ``Format="HDF"`` (``beam.h5:/data0``) relative
+    to the folder of the file a link points to, ``Format="Binary"`` relative to the working folder;
+    where it cannot be parsed, the ``.h5`` beside it (``with_data_file``) if that exists."""
     path = Path(path)
     if path.suffix.lower() not in XDMF_SUFFIXES:
         return [path]
@@ -52,11 +53,19 @@ def read_files(path):
 
     try:
         root = ElementTree.parse(path).getroot()
-    except ElementTree.ParseError:
+    except (ElementTree.ParseError, LookupError, ValueError):    # not XML, or an unknown encoding
         return [file for file in with_data_file(path) if file == path or file.is_file()]
-    named = {item.text.strip().split(":", 1)[0] for item in root.iter("DataItem")
-             if item.get("Format") == "HDF" and item.text and item.text.strip()}
-    return [path, *(path.parent / name for name in sorted(named))]
+    folder = path.resolve().parent
+    named = set()
+    for item in root.iter("DataItem"):
+        text = (item.text or "").strip()
+        if not text or item.get("ItemType") == "Reference":
+            continue
+        if item.get("Format") == "HDF":
+            named.add(folder / text.split(":", 1)[0])
+        elif item.get("Format") == "Binary":
+            named.add(Path(text))
+    return [path, *sorted(named)]
 
 
 def content_sha256(path):

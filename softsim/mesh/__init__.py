@@ -147,7 +147,8 @@ def build_mesh(spec):
     try:
         digest = content_sha256(spec.file)
     except OSError as exc:
-        raise MeshError(f"mesh.file = '{spec.file}': cannot be read ({exc.strerror or exc})") from None
+        what = f"{exc.filename}: " if exc.filename and str(exc.filename) != str(spec.file) else ""
+        raise MeshError(f"mesh.file = '{spec.file}': cannot be read ({what}{exc.strerror or exc})") from None
     checked = checked_mesh(*raw_tetrahedra(spec), f"mesh.file = '{spec.file}'")
     return dataclasses.replace(checked, source_sha256=digest)
 

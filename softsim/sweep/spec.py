@@ -220,7 +220,10 @@ def _values_checker(where: str):
                 fail("keys must be dotted scene keys like material.youngs_modulus", key=str(key),
                      show_value=False)
             check_scene_key(key)
-            result[key] = _check_values(key, values, where)
+            name = canonical_key(key)
+            if name in result:
+                fail(f"is given twice (as {name})", key=key, show_value=False)
+            result[name] = _check_values(name, values, where)
         return result
 
     return check
@@ -236,7 +239,13 @@ def _check_fixed_values(value: Any) -> dict:
         if not isinstance(key, str) or not key:
             fail("keys must be dotted scene keys like time.duration", key=str(key), show_value=False)
         check_scene_key(key)
-    return copy.deepcopy(dict(value))
+    result = {}
+    for key, one in value.items():
+        name = canonical_key(key)
+        if name in result:
+            fail(f"is given twice (as {name})", key=key, show_value=False)
+        result[name] = copy.deepcopy(one)
+    return result
 
 
 def _check_base(value: Any) -> Union[str, dict]:
@@ -395,8 +404,19 @@ def run_name(parameters: Mapping, labels: Mapping) -> str:
 def labels_for(keys) -> dict:
     """Each swept key's label in run names: its last part (an item number as ``_0``: ``size_0``), or
     the whole key where two would clash."""
-    last = [re.sub(r"\[(\d+)\]", r"_\1", key.rsplit(".", 1)[-1]) for key in keys]
-    return {key: short if last.count(short) == 1 else key for key, short in zip(keys, last)}
+    last = [_numbered(key.rsplit(".", 1)[-1]) for key in keys]
+    return {key: short if last.count(short) == 1 else _numbered(key) for key, short in zip(keys, last)}
+
+
+def _numbered(key: str) -> str:
+    """``key`` with its item numbers written for a file name: ``fixed[0].min`` -> ``fixed_0.min``."""
+    return re.sub(r"\[(\d+)\]", r"_\1", key)
+
+
+def canonical_key(key: str) -> str:
+    """``key`` with its item numbers written plainly (``fixed[00]`` -> ``fixed[0]``), so that two
+    spellings of one key are seen as the same key."""
+    return re.sub(r"\[(\d+)\]", lambda number: f"[{int(number[1])}]", key)
 
 
 def _with_value(data: Mapping, keys: list, value: Any) -> dict:

@@ -70,7 +70,7 @@ def write_csv(rows, path):
         writer.writerow(COLUMNS)
         for r in rows:
             writer.writerow((r.case, r.quantity, r.model, r.precision, r.ladder, f"{r.refinement:.6g}",
-                             f"{r.element_size:.6g}", r.tets, f"{r.dt:.6g}", r.steps, f"{r.wall_time_s:.4f}",
+                             f"{r.element_size:.6g}", r.tets, f"{r.dt:.6g}", r.steps, f"{r.wall_time_s:.6g}",
                              f"{r.value:.10g}", f"{r.reference_value:.10g}", f"{r.error:.4e}", r.reference,
                              f"{r.reference_uncertainty:.2e}", _blank(r.order, ".3f"), _blank(r.order_self, ".3f"),
                              r.note))
@@ -429,7 +429,7 @@ def verify_report(out_dir, quick=False, cases=None, models=MODELS, plot=True, pr
     bad = [p for p in precisions if p not in PRECISIONS]
     if bad or not precisions:
         raise ConfigError(f"precision {', '.join(bad) or '(none)'}: must be one or more of {', '.join(PRECISIONS)}")
-    if tuple(precisions) == ("float32",) and not set(models) & set(FLOAT32_MODELS):
+    if set(precisions) == {"float32"} and not set(models) & set(FLOAT32_MODELS):
         raise ConfigError(f"--precision float32: {', '.join(models)} steps in float64 only; float32 is available "
                           f"for {', '.join(FLOAT32_MODELS)}")
     import numba
@@ -520,9 +520,13 @@ def read_csv(path):
             if None in d.values() or None in d:
                 raise ConfigError(f"'{path}' line {reader.line_num}: not {len(COLUMNS)} columns")
             try:
-                rows.append(_row_of(d, number))
+                row = _row_of(d, number)
             except ValueError as exc:
                 raise ConfigError(f"'{path}' line {reader.line_num}: {exc}") from None
+            if not (math.isfinite(row.wall_time_s) and row.wall_time_s >= 0.0):
+                raise ConfigError(f"'{path}' line {reader.line_num}: wall_time_s = {row.wall_time_s}: must be a "
+                                  f"time of at least 0 s")
+            rows.append(row)
     return rows
 
 
