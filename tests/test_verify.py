@@ -377,7 +377,7 @@ def test_cli_replot_redraws_from_the_table_without_running(report, tmp_path):
 def test_a_report_that_cannot_be_written_or_has_nothing_to_run_is_refused_before_any_run(tmp_path):
     blocker = tmp_path / "file"
     blocker.write_text("")
-    with pytest.raises(ConfigError, match=r"^-o = '.*file/out': cannot write there \(Not a directory\)$"):
+    with pytest.raises(ConfigError, match=r"^-o = '.*file/out': cannot write there \("):
         verify_report(blocker / "out", quick=True, cases=["patch"])
     with pytest.raises(ConfigError, match=r"^--precision float32: corotated steps in float64 only"):
         verify_report(tmp_path / "v", quick=True, cases=["patch"], models=["corotated"], precisions=["float32"])
