@@ -1,4 +1,4 @@
-"""Make the README's pictures in docs/images/ (kept in git, so that the README shows them).
+"""Make the README's pictures in docs/images/ (they are generated, not kept in git).
 
     python benchmarks/readme_figures.py [--quick]
 
