@@ -23,13 +23,12 @@ from .integrators.guard import RECHECK_STEPS, FrameGuard, ground_spring_energy
 from .integrators.stability import exact_stable_step, nodal_frequency_bound
 from .integrators.timestep import (AUTO_EIGEN_ITERATIONS, AUTO_EIGEN_MIN_STEPS, AUTO_EIGEN_SAFETY, AUTO_SAFETY,
                                    dilatational_wave_speed, plan_time)
-from .io.files import content_sha256
-from .io.hdf5 import (RUN_ATTRIBUTES, RunWriter, check_writable, frames_written, free_bytes, read_resume_state,
+from .io.hdf5 import (RunWriter, attributes_of, check_writable, frames_written, free_bytes, read_resume_state,
                       refuse_if_being_written, require_resume_names)
 from .kernels.energy import elastic_energy, gravity_energy, kinetic_energy
 from .kernels.fields import tet_fields
 from .kernels.jit import compile_timer, threading_layer
-from .mesh import build_mesh
+from .mesh import build_mesh, mesh_file_sha256
 from .model import State, build_model, initial_state
 
 log = logging.getLogger("softsim")
@@ -514,7 +513,7 @@ def check_resumable(scene, output_path):
     refuse_if_being_written(output_path, resuming=True)
     try:
         with h5py.File(path, "r") as f:
-            stored = {key: str(f.attrs[key]) for key in RUN_ATTRIBUTES if key in f.attrs}
+            stored = attributes_of(f)
             stored_state = read_resume_state(f) if "state" in f else None
             frames = frames_written(f)
     except (OSError, KeyError) as exc:
@@ -547,19 +546,20 @@ def scene_difference(stored_yaml, scene):
     return None if stored == current else _first_difference(stored, current)
 
 
-def run_file_difference(stored, scene):
+def run_file_difference(stored, scene, digests=None):
     """``None`` if a run file whose root attributes are ``stored`` (``io.hdf5.RUN_ATTRIBUTES``:
     ``config`` and, from a mesh file, ``mesh_file_sha256``) was written for ``scene`` as it is now;
     else the first difference, for messages.  A mesh file's content counts: the scene names the
     file, not what it holds.  (A file written before softsim stored the hash is taken as matching
-    here; a resume still compares the meshes themselves, ``RunWriter.reopen``.)"""
+    here; a resume still compares the meshes themselves, ``RunWriter.reopen``.)  digests: a dict
+    from mesh file to hash, filled as files are hashed, so that a caller comparing many runs of one
+    file (a sweep) reads it once."""
     key = scene_difference(stored["config"], scene)
     if key is None and scene.mesh.shape == "file" and "mesh_file_sha256" in stored:
-        try:
-            now = content_sha256(scene.mesh.file)
-        except OSError as exc:
-            what = f"{exc.filename}: " if exc.filename and str(exc.filename) != str(scene.mesh.file) else ""
-            raise ConfigError(f"mesh.file = '{scene.mesh.file}': cannot be read ({what}{exc.strerror or exc})") from None
+        digests = {} if digests is None else digests
+        if scene.mesh.file not in digests:
+            digests[scene.mesh.file] = mesh_file_sha256(scene.mesh.file)
+        now = digests[scene.mesh.file]
         if now != stored["mesh_file_sha256"]:
             key = (f"mesh.file: the content of '{scene.mesh.file}' changed (SHA-256 "
                    f"{stored['mesh_file_sha256'][:12]}... -> {now[:12]}...)")

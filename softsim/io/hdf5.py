@@ -234,9 +234,14 @@ def run_attributes(path):
     as str), those it has; empty where there is no such file or it is no HDF5 file."""
     try:
         with h5py.File(path, "r", locking=False) as f:
-            return {key: str(f.attrs[key]) for key in RUN_ATTRIBUTES if key in f.attrs}
+            return attributes_of(f)
     except OSError:
         return {}
+
+
+def attributes_of(f):
+    """``run_attributes`` of the open HDF5 file ``f``."""
+    return {key: str(f.attrs[key]) for key in RUN_ATTRIBUTES if key in f.attrs}
 
 
 def holds_run(path):

@@ -138,19 +138,25 @@ def checked_mesh(points, tets, source):
     return TetMesh(points=points, tets=tets, source=source, boundary_slots=boundary)
 
 
+def mesh_file_sha256(file):
+    """``io.files.content_sha256`` of the scene's mesh file ``file``; ``MeshError`` naming the file
+    (or the data file it names) that cannot be read."""
+    try:
+        return content_sha256(file)
+    except OSError as exc:
+        what = f"{exc.filename}: " if exc.filename and str(exc.filename) != str(file) else ""
+        raise MeshError(f"mesh.file = '{file}': cannot be read ({what}{exc.strerror or exc})") from None
+
+
 def build_mesh(spec):
     """The checked ``TetMesh`` of a scene's ``mesh`` section."""
     if spec.shape != "file":
         return checked_mesh(*raw_tetrahedra(spec), f"mesh.shape = {spec.shape}")
     # Hashed before it is read: a file changed in between then differs from its stored hash later
     # (a resume refused), never the other way round (a changed mesh taken for the one run before).
-    try:
-        digest = content_sha256(spec.file)
-    except OSError as exc:
-        what = f"{exc.filename}: " if exc.filename and str(exc.filename) != str(spec.file) else ""
-        raise MeshError(f"mesh.file = '{spec.file}': cannot be read ({what}{exc.strerror or exc})") from None
+    digest = mesh_file_sha256(spec.file)
     checked = checked_mesh(*raw_tetrahedra(spec), f"mesh.file = '{spec.file}'")
     return dataclasses.replace(checked, source_sha256=digest)
 
 
-__all__ = ["TetMesh", "build_mesh", "checked_mesh", "raw_tetrahedra", "format_quality"]
+__all__ = ["TetMesh", "build_mesh", "mesh_file_sha256", "checked_mesh", "raw_tetrahedra", "format_quality"]

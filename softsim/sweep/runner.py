@@ -161,6 +161,7 @@ def plan_runs(runs, force=False):
     from ..simulation import run_file_difference
 
     to_run, to_skip = [], []
+    digests = {}                        # each mesh file hashed once, however many runs use it
     for run in runs:
         path = run.path
         if force or not path.exists():
@@ -177,7 +178,7 @@ def plan_runs(runs, force=False):
             to_run.append(run)
             continue
         try:
-            difference = run_file_difference(stored, run.scene)
+            difference = run_file_difference(stored, run.scene, digests)
         except (yaml.YAMLError, AttributeError):      # not a mapping: not a scene softsim wrote
             difference = "config: not a scene"
         if difference is not None:

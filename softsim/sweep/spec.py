@@ -419,14 +419,6 @@ def canonical_key(key: str) -> str:
     return re.sub(r"\[(\d+)\]", lambda number: f"[{int(number[1])}]", key)
 
 
-def _with_value(data: Mapping, keys: list, value: Any) -> dict:
-    """A copy of ``data`` with ``data[k0][k1]...[kn] = value`` (``name[i]``: item ``i`` of the list
-    ``name``); ``data`` is untouched."""
-    result = copy.deepcopy(dict(data))
-    set_key_path(result, keys, copy.deepcopy(value), ".".join(keys))
-    return result
-
-
 def combinations(sweep: Sweep):
     """Each run's parameters, in order: ``{key: value}`` with ``parameters`` keys first (the first slowest)."""
     zipped = list(zip(*sweep.zip.values())) if sweep.zip else [()]
@@ -454,11 +446,10 @@ def expand_sweep(sweep: Sweep, output_dir: Union[str, Path]) -> list[Run]:
             raise ConfigError(f"runs {names[name] + 1} and {index + 1} of {count} would both write {name}.h5; "
                               f"give them values that differ in their first 17 digits")
         names[name] = index
-        data = sweep.base
+        data = copy.deepcopy(dict(sweep.base))     # once a run; the keys are set in place
         try:
-            for key, value in [*sweep.fixed.items(), *point.items()]:
-                data = _with_value(data, key.split("."), value)
-            data = _with_value(data, ["output", "path"], str(output_dir / f"{name}.h5"))
+            for key, value in [*sweep.fixed.items(), *point.items(), ("output.path", str(output_dir / f"{name}.h5"))]:
+                set_key_path(data, key.split("."), copy.deepcopy(value), key)
             scene = parse_scene(data, sweep.base_dir)
         except ConfigError as error:
             raise ConfigError(f"run {index + 1} of {count} ({name}): {error}") from None
