@@ -16,8 +16,8 @@ import numba
 import numpy as np
 
 from .config import scene_to_yaml
-from .integrators.symplectic_euler import (PartSchedule, PrefetchChoice, advance, step_arguments, step_threads,
-                                           work_buffer)
+from .integrators.symplectic_euler import (PartSchedule, PrefetchChoice, advance, advance_driver, step_arguments,
+                                           step_threads, work_buffer)
 from .errors import ConfigError, SimulationError
 from .integrators.guard import RECHECK_STEPS, FrameGuard, ground_spring_energy
 from .integrators.stability import exact_stable_step, nodal_frequency_bound
@@ -27,6 +27,7 @@ from .io.hdf5 import (RunWriter, attributes_of, check_writable, frames_written, 
                       refuse_if_being_written, require_resume_names)
 from .kernels.energy import elastic_energy, gravity_energy, kinetic_energy
 from .kernels.fields import tet_fields
+from .kernels import compile_ahead
 from .kernels.jit import compile_timer, threading_layer
 from .mesh import build_mesh, mesh_file_sha256
 from .model import State, build_model, initial_state
@@ -144,12 +145,16 @@ def choose_dt(scene, model, dt_estimate):
     return dt / substeps, safe, substeps
 
 
-def prepare(scene, mesh=None, resuming=False):
+def prepare(scene, mesh=None, resuming=False, compile_step=False):
     """Mesh the scene (unless ``mesh``, a ``TetMesh`` already built from ``scene.mesh``, is given),
     build its model and time plan; raises ``SoftsimError`` on bad input.  resuming: the run goes on
-    from a stored frame, so what the initial state would do (start in the ground) is not warned of."""
+    from a stored frame, so what the initial state would do (start in the ground) is not warned of.
+    compile_step: start compiling the step in a helper process, where the disk cache lacks it
+    (``compile_step_ahead``), once the model is built."""
     mesh = build_mesh(scene.mesh) if mesh is None else mesh
     model = build_model(scene, mesh)
+    if compile_step:
+        compile_step_ahead(scene, model)
     if model.has_ground and not resuming:
         warn_of_start_in_ground(scene, model)
     material = scene.material
@@ -225,17 +230,13 @@ def prefetch_trial_running(model):
     return any(choice.trying for choice in PREFETCH_CHOICES.get(model.blocks, {}).values())
 
 
-def step(model, state, dt, step_count, damping, work):
-    """Advance ``state`` in place by ``step_count`` symplectic-Euler steps of ``dt`` [s]; work: the
-    buffer of ``work_buffer(model)``.  A float32 model steps displacements in float32
-    (``integrators.symplectic_euler.SinglePrecisionWork``); ``state`` stays float64.  A large mesh
-    steps with its prefetches or without them, whichever its calls time faster (``PrefetchChoice``,
-    one per block layout and thread count in ``PREFETCH_CHOICES``): the same bits either way.  Its
-    first call compiles (or loads) both ways, the second by a call of no step, so that a caller
-    who times the calls after the first (a speed sample, a benchmark) times no compiling."""
+def advance_arguments(model, state, dt, damping, work, prefetch, step_count, threads, one_region):
+    """``advance``'s arguments for ``step_count`` steps of ``dt`` [s] of ``model`` from ``state``
+    (float64), or, in float32, from ``work`` (``SinglePrecisionWork``, loaded from the state),
+    ``prefetch`` or not (``step_arguments``), on ``threads``, ``one_region`` or not
+    (``PartSchedule``); and the parts those steps run (0 for the csr scatter)."""
     damping_factor = math.exp(-damping * dt) if damping > 0.0 else None
     if model.precision == "float32":
-        work.load(state, model.rest_points)
         x, rest, v, held_start = work.u, work.rest, work.v, work.held_start
         inv_mass, gravity, external_accel = work.inv_mass, work.gravity, work.external_accel
         held_velocity = work.held_velocity
@@ -248,19 +249,54 @@ def step(model, state, dt, step_count, damping, work):
         external_accel = model.external_accel if model.has_tractions else None
         lam, mu = model.lam, model.mu
         forces = work
+    blocks, colour_offsets, scatter, offsets, slots, vertex_forces, corner = step_arguments(model, forces, prefetch)
+    arguments = (x, rest, v, state.step, step_count, dt, blocks, colour_offsets, scatter, model.material_id, lam, mu,
+                 offsets, slots, vertex_forces, corner, inv_mass, gravity, external_accel, model.held, held_start,
+                 held_velocity, *model.ground_arguments(), damping_factor, threads, one_region)
+    return arguments, step_count * (colour_offsets[-1] if scatter else 0)
+
+
+def step_calls(scene, model):
+    """The compiled step's calls ``step`` will make for ``scene``'s ``model``, as ``[(driver,
+    arguments), ...]`` (``advance_driver``): with prefetches and, for a mesh that times them,
+    without.  The types of the arguments are what they are for: dt is 0 s and no step is taken."""
+    state, work = initial_state(scene, model), work_buffer(model)
+    threads = step_threads(model.tet_count, numba.get_num_threads(), threading_layer())
+    calls = []
+    for prefetch in (False, True) if model.blocks.measure_prefetch else (True,):
+        arguments, _ = advance_arguments(model, state, 0.0, scene.damping, work, prefetch, 0, threads, True)
+        calls.append(advance_driver(*arguments))
+    return calls
+
+
+def compile_step_ahead(scene, model):
+    """Start compiling the step of ``scene``'s ``model`` (``step_calls``) in a helper process where
+    Numba's disk cache lacks it (``kernels.compile_ahead``): this process compiles the stable step,
+    energies, guard and fields meanwhile, and ``step`` waits for the helper before its first call.
+    Returns how many specialisations the helper took (0: none)."""
+    return compile_ahead.submit(step_calls(scene, model))
+
+
+def step(model, state, dt, step_count, damping, work):
+    """Advance ``state`` in place by ``step_count`` symplectic-Euler steps of ``dt`` [s]; work: the
+    buffer of ``work_buffer(model)``.  A float32 model steps displacements in float32
+    (``integrators.symplectic_euler.SinglePrecisionWork``); ``state`` stays float64.  A large mesh
+    steps with its prefetches or without them, whichever its calls time faster (``PrefetchChoice``,
+    one per block layout and thread count in ``PREFETCH_CHOICES``): the same bits either way.  Its
+    first call compiles (or loads) both ways, the second by a call of no step, so that a caller
+    who times the calls after the first (a speed sample, a benchmark) times no compiling; it
+    first waits for a helper compiling the step (``compile_step_ahead``), if one runs."""
+    if model.precision == "float32":
+        work.load(state, model.rest_points)
     available = numba.get_num_threads()
     threads = step_threads(model.tet_count, available, threading_layer())
     one_region = PART_SCHEDULE.one_region()
 
     def advance_way(prefetch, steps):
-        blocks, colour_offsets, scatter, offsets, slots, vertex_forces, corner = step_arguments(model, forces,
-                                                                                              prefetch)
-        long_waits = advance(x, rest, v, state.step, steps, dt,
-                             blocks, colour_offsets, scatter, model.material_id, lam, mu, offsets, slots,
-                             vertex_forces, corner, inv_mass, gravity, external_accel, model.held, held_start,
-                             held_velocity, *model.ground_arguments(), damping_factor, threads, one_region)
-        return long_waits, steps * (colour_offsets[-1] if scatter else 0)
+        arguments, parts = advance_arguments(model, state, dt, damping, work, prefetch, steps, threads, one_region)
+        return advance(*arguments), parts
 
+    compile_ahead.wait()
     choice = None
     numba.set_num_threads(threads)
     try:

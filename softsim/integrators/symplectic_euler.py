@@ -434,13 +434,26 @@ def advance(x, rest, v, step_start, step_count, dt,
     to zero (``kernels.simd.flush_subnormals``: in float32 the front of a wave is made of them, and
     each cost a microcode assist), each thread's control word restored after its part or chunk.
     """
+    driver, arguments = advance_driver(x, rest, v, step_start, step_count, dt, blocks, colour_offsets, scatter, model,
+                                       lam, mu, offsets, slots, vertex_forces, corner_forces, inv_mass, gravity,
+                                       external_accel, held, held_start, held_velocity, ground, ground_faces,
+                                       damping_factor, threads, one_region)
+    return driver(*arguments)
+
+
+def advance_driver(x, rest, v, step_start, step_count, dt,
+                   blocks, colour_offsets, scatter, model, lam, mu, offsets, slots, vertex_forces, corner_forces,
+                   inv_mass, gravity, external_accel, held, held_start, held_velocity,
+                   ground, ground_faces, damping_factor, threads, one_region):
+    """The compiled driver ``advance`` runs for its arguments (the same), and the driver's own
+    arguments: ``(advance_colour, (...))`` or ``(advance_csr, (...))``."""
     if scatter:
-        return advance_colour(x, rest, v, step_start, step_count, dt, blocks, colour_offsets, model, lam, mu,
-                              vertex_forces, corner_forces, inv_mass, gravity, external_accel, held, held_start,
-                              held_velocity, ground, ground_faces, damping_factor, threads, one_region)
-    return advance_csr(x, rest, v, step_start, step_count, dt, blocks, model, lam, mu, offsets, slots,
-                       vertex_forces, corner_forces, inv_mass, gravity, external_accel, held, held_start,
-                       held_velocity, ground, ground_faces, damping_factor, threads)
+        return advance_colour, (x, rest, v, step_start, step_count, dt, blocks, colour_offsets, model, lam, mu,
+                                vertex_forces, corner_forces, inv_mass, gravity, external_accel, held, held_start,
+                                held_velocity, ground, ground_faces, damping_factor, threads, one_region)
+    return advance_csr, (x, rest, v, step_start, step_count, dt, blocks, model, lam, mu, offsets, slots,
+                         vertex_forces, corner_forces, inv_mass, gravity, external_accel, held, held_start,
+                         held_velocity, ground, ground_faces, damping_factor, threads)
 
 
 @njit

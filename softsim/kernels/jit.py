@@ -27,6 +27,8 @@ from numba import types
 from numba.core import event
 from numba.extending import typeof_impl
 
+from . import compile_ahead
+
 # ``fastmath={"contract"}`` lets LLVM fuse a multiply and an add into one FMA (one rounding instead of
 # two) and nothing else: no reassociation, NaN and infinities kept.  Without it the lane loops of
 # ``kernels.blocked`` compiled to separate packed multiplies and adds (StVK: 122 and 83 a vector of
@@ -235,9 +237,11 @@ def on_first_compile(callback):
 
 @contextlib.contextmanager
 def compile_timer():
-    """Time Numba spends compiling while inside (not loading machine code from its disk cache):
-    yields a function returning the seconds so far.  Nested compiles (a kernel and what it calls)
-    count once."""
+    """Time Numba spends compiling while inside (not loading machine code from its disk cache),
+    and time waiting for a helper process compiling kernels (``compile_ahead.wait``): yields a
+    function returning the seconds so far.  Nested compiles (a kernel and what it calls) count once."""
     listener = event.TimingListener()
+    waited_before = compile_ahead.waited_seconds()
     with event.install_listener("numba:compile", listener):
-        yield lambda: listener.duration if listener.done else 0.0
+        yield lambda: ((listener.duration if listener.done else 0.0)
+                       + compile_ahead.waited_seconds() - waited_before)
