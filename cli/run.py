@@ -88,7 +88,7 @@ def run(scene, output, overwrite, resume, yes, overrides):
     else:
         inputs = (scene,) + ((scene_config.mesh.file,) if scene_config.mesh.file else ())
         check_writable(scene_config.output.path, overwrite, inputs)   # before meshing: a bad path costs no work
-    prepared = prepare(scene_config, resuming=resume, compile_step=True)
+    prepared = prepare(scene_config, resuming=resume, compile_in_helper=True)
     log.info("mesh: %s", format_quality(prepared.mesh.quality()))
     plan = prepared.plan
     given = "" if prepared.substeps == 1 else f" (time.dt split into {prepared.substeps} sub-steps, dt_policy: substep)"

@@ -19,7 +19,7 @@ from .config import scene_to_yaml
 from .integrators.symplectic_euler import (PartSchedule, PrefetchChoice, advance, advance_driver, step_arguments,
                                            step_threads, work_buffer)
 from .errors import ConfigError, SimulationError
-from .integrators.guard import RECHECK_STEPS, FrameGuard, ground_spring_energy
+from .integrators.guard import RECHECK_CHANGE, RECHECK_STEPS, FrameGuard, element_measure_call, ground_spring_energy
 from .integrators.stability import exact_stable_step, nodal_frequency_bound
 from .integrators.timestep import (AUTO_EIGEN_ITERATIONS, AUTO_EIGEN_MIN_STEPS, AUTO_EIGEN_SAFETY, AUTO_SAFETY,
                                    dilatational_wave_speed, plan_time)
@@ -145,16 +145,16 @@ def choose_dt(scene, model, dt_estimate):
     return dt / substeps, safe, substeps
 
 
-def prepare(scene, mesh=None, resuming=False, compile_step=False):
+def prepare(scene, mesh=None, resuming=False, compile_in_helper=False):
     """Mesh the scene (unless ``mesh``, a ``TetMesh`` already built from ``scene.mesh``, is given),
     build its model and time plan; raises ``SoftsimError`` on bad input.  resuming: the run goes on
     from a stored frame, so what the initial state would do (start in the ground) is not warned of.
-    compile_step: start compiling the step in a helper process, where the disk cache lacks it
-    (``compile_step_ahead``), once the model is built."""
+    compile_in_helper: start compiling the step and the guard in a helper process, where the disk
+    cache lacks them (``compile_run_ahead``), once the model is built."""
     mesh = build_mesh(scene.mesh) if mesh is None else mesh
     model = build_model(scene, mesh)
-    if compile_step:
-        compile_step_ahead(scene, model)
+    if compile_in_helper:
+        compile_run_ahead(scene, model)
     if model.has_ground and not resuming:
         warn_of_start_in_ground(scene, model)
     material = scene.material
@@ -256,11 +256,13 @@ def advance_arguments(model, state, dt, damping, work, prefetch, step_count, thr
     return arguments, step_count * (colour_offsets[-1] if scatter else 0)
 
 
-def step_calls(scene, model):
-    """The compiled step's calls ``step`` will make for ``scene``'s ``model``, as ``[(driver,
-    arguments), ...]`` (``advance_driver``): with prefetches and, for a mesh that times them,
-    without.  The types of the arguments are what they are for: dt is 0 s and no step is taken."""
-    state, work = initial_state(scene, model), work_buffer(model)
+def step_calls(scene, model, state=None):
+    """The compiled step's calls ``step`` will make for ``scene``'s ``model`` from ``state`` (default:
+    the initial state), as ``[(driver, arguments), ...]`` (``advance_driver``): with prefetches
+    and, for a mesh that times them, without.  The types of the arguments are what they are for:
+    dt is 0 s and no step is taken."""
+    state = initial_state(scene, model) if state is None else state
+    work = work_buffer(model)
     threads = step_threads(model.tet_count, numba.get_num_threads(), threading_layer())
     calls = []
     for prefetch in (False, True) if model.blocks.measure_prefetch else (True,):
@@ -269,12 +271,25 @@ def step_calls(scene, model):
     return calls
 
 
-def compile_step_ahead(scene, model):
-    """Start compiling the step of ``scene``'s ``model`` (``step_calls``) in a helper process where
-    Numba's disk cache lacks it (``kernels.compile_ahead``): this process compiles the stable step,
-    energies, guard and fields meanwhile, and ``step`` waits for the helper before its first call.
-    Returns how many specialisations the helper took (0: none)."""
-    return compile_ahead.submit(step_calls(scene, model))
+def run_calls(scene, model):
+    """The calls of compiled kernels a run of ``scene``'s ``model`` makes that take longest to
+    compile, in the order the run first makes them, as ``[(kernel, arguments), ...]``: the guard's
+    measure of the tets (``guard.element_measure_call``), then the step's (``step_calls``)."""
+    state = initial_state(scene, model)
+    m = model.tet_count
+    guard_call = element_measure_call(model, state.x, np.empty(m), np.empty(m), np.ones(m), np.ones(m),
+                                      RECHECK_CHANGE)
+    return [guard_call] + step_calls(scene, model, state)
+
+
+def compile_run_ahead(scene, model):
+    """Start compiling the kernels of ``run_calls`` in a helper process, where Numba's disk cache
+    lacks them (``kernels.compile_ahead``): this process compiles the stable step, the energies and
+    the fields meanwhile, and waits for the helper before it first calls one of them.  Returns how
+    many specialisations the helper took (0: none)."""
+    if not compile_ahead.enabled():
+        return 0
+    return compile_ahead.submit(run_calls(scene, model))
 
 
 def step(model, state, dt, step_count, damping, work):
@@ -285,7 +300,7 @@ def step(model, state, dt, step_count, damping, work):
     one per block layout and thread count in ``PREFETCH_CHOICES``): the same bits either way.  Its
     first call compiles (or loads) both ways, the second by a call of no step, so that a caller
     who times the calls after the first (a speed sample, a benchmark) times no compiling; it
-    first waits for a helper compiling the step (``compile_step_ahead``), if one runs."""
+    first waits for a helper compiling the step (``compile_run_ahead``), if one runs."""
     if model.precision == "float32":
         work.load(state, model.rest_points)
     available = numba.get_num_threads()

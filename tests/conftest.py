@@ -17,7 +17,11 @@ import os
 
 import pytest
 
-from softsim.config import parse_scene
+# The tests run in two worker processes on two cores: a helper compiling a run's kernels beside
+# each (``kernels.compile_ahead``) would find no idle core.  Its own tests switch it on.
+os.environ.setdefault("SOFTSIM_COMPILE_AHEAD", "0")
+
+from softsim.config import parse_scene  # noqa: E402  (after the switch, before softsim is imported)
 
 BASE_SCENE = {
     "mesh": {"shape": "box", "size": [0.2, 0.2, 0.2], "element_size": 0.1, "structured": True},

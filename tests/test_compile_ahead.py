@@ -1,6 +1,6 @@
-"""Compiling the step in a helper process (``kernels.compile_ahead``): the helper fills Numba's
+"""Compiling kernels in a helper process (``kernels.compile_ahead``): the helper fills Numba's
 disk cache with what this process then loads instead of compiling, for the very argument types
-the step calls with; and a helper that fails costs nothing but its time."""
+a run calls the guard and the step with; and a helper that fails costs nothing but its time."""
 
 import os
 import subprocess
@@ -10,69 +10,80 @@ import textwrap
 import numpy as np
 import pytest
 
-from softsim.integrators import symplectic_euler
-from softsim.integrators.symplectic_euler import advance_driver, work_buffer
+from softsim.integrators import guard, symplectic_euler
 from softsim.kernels import blocked, compile_ahead
-from softsim.model import initial_state
-from softsim.simulation import prepare, step, step_calls
+from softsim.simulation import prepare, run_calls, simulate
 
 # A fresh process with a cache of its own (Numba reads NUMBA_CACHE_DIR as it loads): submits
-# ``kinetic_energy`` for float32 arrays, which nothing else compiles, then calls it and prints
-# what it saw.  HELPER_FATE: "wait" for the helper, or "kill" it first.
+# ``kinetic_energy`` of float32 arrays and ``elastic_energy`` of one StVK tet stretched by 1.1
+# along x, its model id a compile-time constant (as the step's), which nothing else compiles in
+# that cache; waits for each before calling it, and prints what it saw.  FATE: "wait" for the
+# helper, or "kill" it first.
 PROBE = textwrap.dedent("""
     import numpy as np
     from numba.core import event
-    from softsim.kernels import blocked, compile_ahead
-    from softsim.kernels.energy import kinetic_energy
+    from softsim.kernels import compile_ahead
+    from softsim.kernels.energy import elastic_energy, kinetic_energy
+    from softsim.kernels.jit import CompileTimeConstant
+    from softsim.materials.models import MODEL_IDS
 
     v = np.arange(12, dtype=np.float32).reshape(4, 3)
     mass = np.full(4, 2.0, dtype=np.float32)
-    signature = compile_ahead.argument_types(kinetic_energy, (v, mass))
-    cached_before = compile_ahead.is_compiled_or_cached(kinetic_energy, signature)
-    handed = compile_ahead.submit([(kinetic_energy, (v, mass))])
+    x = np.array([[0.0, 0, 0], [1.1, 0, 0], [0, 1, 0], [0, 0, 1]])
+    tet = (x, np.array([[0, 1, 2, 3]]), np.eye(3)[None], np.array([1 / 6]), CompileTimeConstant(MODEL_IDS["stvk"]),
+           1.0, 1.0)
+    calls = [(kinetic_energy, (v, mass)), (elastic_energy, tet)]
+    cached = [compile_ahead.is_compiled_or_cached(f, compile_ahead.argument_types(f, a)) for f, a in calls]
+    handed = compile_ahead.submit(calls)
     if "{fate}" == "kill" and handed:
         compile_ahead._helper.process.kill()
-    compile_ahead.wait()
-    cached_after = compile_ahead.is_compiled_or_cached(kinetic_energy, signature)
-    with event.install_listener("numba:compile", event.TimingListener()) as listener:
-        energy = kinetic_energy(v, mass)
-    print(cached_before, handed, cached_after, listener.done, energy)
+    compiled_here, energies = [], []
+    for f, arguments in calls:
+        compile_ahead.wait(f)
+        cached.append(compile_ahead.is_compiled_or_cached(f, compile_ahead.argument_types(f, arguments)))
+        with event.install_listener("numba:compile", event.TimingListener()) as listener:
+            energies.append(f(*arguments))
+        compiled_here.append(listener.done)
+    print(repr((cached, handed, compiled_here, energies, compile_ahead._helper is None)))
 """)
 
 
 def run_probe(tmp_path, fate="wait", switch="1"):
+    """``(cached, handed, compiled_here, energies, helper_gone)``: whether each kernel was in the
+    cache before the submit and after its wait (4 values), how many the helper took, whether this
+    process compiled each, each's value, and whether the helper is gone after the last wait."""
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache"), compile_ahead.ENVIRONMENT_SWITCH: switch}
     out = subprocess.run([sys.executable, "-c", PROBE.format(fate=fate)], env=env, capture_output=True,
                          text=True, timeout=300)
     assert out.returncode == 0, out.stderr
-    cached_before, handed, cached_after, compiled_here, energy = out.stdout.split()
-    return cached_before == "True", int(handed), cached_after == "True", compiled_here == "True", float(energy)
+    return eval(out.stdout)
 
 
-EXPECTED_ENERGY = 0.5 * 2.0 * float(np.sum(np.arange(12.0) ** 2))
+# 1/2 m |v|^2 over the probe's four vertices; V0 (mu E:E + lam/2 tr(E)^2) with E_xx = (1.1^2 - 1) / 2
+EXPECTED_ENERGIES = [0.5 * 2.0 * float(np.sum(np.arange(12.0) ** 2)), (0.105 ** 2 + 0.5 * 0.105 ** 2) / 6]
 
 
 @pytest.mark.skipif(compile_ahead.available_cores() < 2, reason="no helper starts on one core")
 def test_the_helper_fills_the_cache_and_this_process_compiles_nothing(tmp_path):
-    cached_before, handed, cached_after, compiled_here, energy = run_probe(tmp_path)
-    assert not cached_before and handed == 1 and cached_after
-    assert not compiled_here
-    assert energy == EXPECTED_ENERGY
+    cached, handed, compiled_here, energies, helper_gone = run_probe(tmp_path)
+    assert cached == [False, False, True, True] and handed == 2
+    assert compiled_here == [False, False]
+    assert energies == pytest.approx(EXPECTED_ENERGIES, rel=1e-12) and helper_gone
 
 
 def test_switched_off_no_helper_starts_and_this_process_compiles(tmp_path):
-    cached_before, handed, cached_after, compiled_here, energy = run_probe(tmp_path, switch="0")
-    assert not cached_before and handed == 0 and not cached_after
-    assert compiled_here
-    assert energy == EXPECTED_ENERGY
+    cached, handed, compiled_here, energies, helper_gone = run_probe(tmp_path, switch="0")
+    assert cached == [False, False, False, False] and handed == 0
+    assert compiled_here == [True, True]
+    assert energies == pytest.approx(EXPECTED_ENERGIES, rel=1e-12) and helper_gone
 
 
 @pytest.mark.skipif(compile_ahead.available_cores() < 2, reason="no helper starts on one core")
 def test_a_helper_that_dies_leaves_this_process_to_compile(tmp_path):
-    _, handed, _, compiled_here, energy = run_probe(tmp_path, fate="kill")
-    assert handed == 1
-    assert compiled_here
-    assert energy == EXPECTED_ENERGY
+    _, handed, compiled_here, energies, helper_gone = run_probe(tmp_path, fate="kill")
+    assert handed == 2
+    assert compiled_here == [True, True]
+    assert energies == pytest.approx(EXPECTED_ENERGIES, rel=1e-12) and helper_gone
 
 
 @pytest.mark.parametrize("overrides", [
@@ -83,26 +94,28 @@ def test_a_helper_that_dies_leaves_this_process_to_compile(tmp_path):
     {"tractions": [{"min": [0.2 - 1e-6, -1, -1], "max": [1, 1, 1], "traction": [0.0, 0.0, -100.0]}],
      "fixed": [{"min": [-1, -1, -1], "max": [1e-6, 1, 1], "velocity": [0.0, 0.0, 0.1]}]},
 ])
-def test_the_step_calls_compiled_ahead_are_the_calls_the_step_makes(scene, monkeypatch, overrides):
-    """The helper compiles the step for the argument types of ``step_calls``: the types the step
-    then calls its driver with (else the helper's work would be lost)."""
+def test_the_calls_compiled_ahead_are_the_calls_the_run_makes(scene, tmp_path, monkeypatch, overrides):
+    """The helper compiles the guard's measure and the step for the argument types of
+    ``run_calls``: the types a run then calls them with (else the helper's work would be lost)."""
     made = []
 
-    def recording_driver(*arguments):
-        driver, driver_arguments = advance_driver(*arguments)
-        made.append((driver, compile_ahead.argument_types(driver, driver_arguments)))
-        return driver, driver_arguments
+    def recording(make_call):
+        def make_and_record(*arguments):
+            kernel, kernel_arguments = make_call(*arguments)
+            made.append((kernel, compile_ahead.argument_types(kernel, kernel_arguments)))
+            return kernel, kernel_arguments
+        return make_and_record
 
     if overrides == "prefetch measured":     # as a large mesh's step: timed with prefetches and without
         monkeypatch.setattr(blocked, "PREFETCH_FROM_BYTES", 0)
         overrides = {}
-    prepared = prepare(scene(**overrides))
+    prepared = prepare(scene(time={"duration": 0.02}, **overrides))
     model = prepared.model
     assert model.blocks.measure_prefetch == (blocked.PREFETCH_FROM_BYTES == 0)
-    ahead = [(driver, compile_ahead.argument_types(driver, arguments))
-             for driver, arguments in step_calls(prepared.scene, model)]
-    monkeypatch.setattr(symplectic_euler, "advance_driver", recording_driver)
-    state = initial_state(prepared.scene, model)
-    step(model, state, prepared.plan.dt, 2, prepared.scene.damping, work_buffer(model))
-    assert len(made) == len(ahead) == (2 if model.blocks.measure_prefetch else 1)
+    ahead = [(kernel, compile_ahead.argument_types(kernel, arguments))
+             for kernel, arguments in run_calls(prepared.scene, model)]
+    monkeypatch.setattr(symplectic_euler, "advance_driver", recording(symplectic_euler.advance_driver))
+    monkeypatch.setattr(guard, "element_measure_call", recording(guard.element_measure_call))
+    assert simulate(prepared, tmp_path / "run.h5").status == "complete"
+    assert len(ahead) == (3 if model.blocks.measure_prefetch else 2)
     assert set(made) == set(ahead)

@@ -259,3 +259,71 @@ def test_the_vertex_update_takes_and_releases_no_reference(ground, damping, dtyp
     sig = tuple(update_from_forces.typeof_pyval(a) for a in args)
     body = _function_ir(update_from_forces, sig)
     assert "@NRT_incref(" not in body and "@NRT_decref(" not in body
+
+
+class FakeCacheFile:
+    """The parts of Numba's ``IndexDataCacheFile`` that ``jit._save_data_first`` uses, in a folder,
+    logging the order of the writes; ``fail_index``: writing the index raises (a process stopped
+    between the two writes)."""
+
+    def __init__(self, folder, fail_index=False):
+        self._cache_path = str(folder)
+        self.index = {}
+        self.data = {}
+        self.writes = []
+        self.fail_index = fail_index
+
+    def _load_index(self):
+        return dict(self.index)
+
+    def _data_name(self, number):
+        return f"f.{number}.nbc"
+
+    def _save_data(self, name, data):
+        self.writes.append(("data", name))
+        self.data[name] = data
+
+    def _save_index(self, overloads):
+        if self.fail_index:
+            raise KeyboardInterrupt
+        self.writes.append(("index", dict(overloads)))
+        self.index = dict(overloads)
+
+
+def test_a_cache_entry_is_written_data_first_and_a_stop_in_between_leaves_no_index_naming_it(tmp_path):
+    from softsim.kernels.jit import _save_data_first
+
+    cache_file = FakeCacheFile(tmp_path)
+    cache_file.data["f.1.nbc"] = "stale code of an older source"
+    _save_data_first(cache_file, "key a", "code a")
+    assert cache_file.writes == [("data", "f.1.nbc"), ("index", {"key a": "f.1.nbc"})]
+    stopped = FakeCacheFile(tmp_path, fail_index=True)
+    with pytest.raises(KeyboardInterrupt):
+        _save_data_first(stopped, "key b", "code b")
+    assert stopped.index == {}                  # the key names no file: the next run compiles it
+
+
+def test_a_cache_entry_waits_for_the_cache_folders_lock(tmp_path):
+    """Written under the folder's exclusive lock: while another holds it, the write waits."""
+    import threading
+
+    fcntl = pytest.importorskip("fcntl")
+    from softsim.kernels.jit import CACHE_LOCK_NAME, _save_data_first
+
+    cache_file = FakeCacheFile(tmp_path)
+    with open(tmp_path / CACHE_LOCK_NAME, "w") as held:
+        fcntl.flock(held, fcntl.LOCK_EX)
+        writer = threading.Thread(target=_save_data_first, args=(cache_file, "key", "code"))
+        writer.start()
+        writer.join(0.3)
+        assert writer.is_alive() and cache_file.writes == []
+    writer.join(5.0)
+    assert not writer.is_alive() and cache_file.index == {"key": "f.1.nbc"}
+
+
+def test_softsims_cached_kernels_read_and_write_their_entries_under_the_lock():
+    from softsim.kernels import jit
+    from softsim.kernels.energy import kinetic_energy
+
+    cache_file = kinetic_energy._cache._cache_file
+    assert cache_file.save.func is jit._save_data_first and cache_file.load.func is jit._load_locked

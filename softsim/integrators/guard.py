@@ -26,6 +26,7 @@ import math
 import numpy as np
 
 from ..errors import SimulationError
+from ..kernels import compile_ahead
 from ..kernels.element_checks import all_finite, block_volume_ratios_and_stretches, element_volume_ratios_and_stretches
 from ..kernels.energy import elastic_energy, gravity_energy, kinetic_energy
 from ..kernels.forces import elastic_forces
@@ -79,6 +80,20 @@ def recheck_change(margin):
     look that left the step ``margin`` = EIGEN_SAFETY x limit / step (>= 1) below its sub-step limit
     (see ``RECHECK_CHANGE``)."""
     return min(RECHECK_CHANGE_MAX, max(RECHECK_CHANGE, (1.0 + RECHECK_CHANGE) * math.sqrt(margin) - 1.0))
+
+
+def element_measure_call(model, x, J, stretch, J_seen, stretch_seen, limit):
+    """The kernel that measures the volume ratio J and the stretch of every tet of ``model`` at
+    positions ``x`` (n, 3) [m] into ``J`` and ``stretch`` (m,), and whether any moved by more than
+    ``limit`` (relative) from ``J_seen`` and ``stretch_seen`` (m,), with its arguments: ``(kernel,
+    arguments)``.  In the vectorised blocks of the step where their rest data is float64
+    (``block_volume_ratios_and_stretches``), else tet by tet."""
+    if model.blocks.rest.dtype == np.float64:
+        blocks = model.blocks
+        return block_volume_ratios_and_stretches, (x, blocks.tets, blocks.rest, model.tet_count, blocks.whole_rows,
+                                                   J, stretch, J_seen, stretch_seen, limit,
+                                                   blocks.points_for_rest(model.rest_points))
+    return element_volume_ratios_and_stretches, (x, model.tets, model.Dm_inv, J, stretch, J_seen, stretch_seen, limit)
 
 
 class FrameGuard:
@@ -206,16 +221,13 @@ class FrameGuard:
         return self._substeps(state, time, self._measure_elements(state.x))
 
     def _measure_elements(self, x):
-        """``self.J`` and ``self.stretch`` of every tet at positions ``x``: in the vectorised blocks
-        of the step where their rest data is float64, else tet by tet.  Returns whether any tet
-        moved by more than ``recheck_change`` since the last eigenvalue look (NaN counts as moved)."""
-        m = self.model
-        if m.blocks.rest.dtype == np.float64:
-            return block_volume_ratios_and_stretches(x, m.blocks.tets, m.blocks.rest, m.tet_count, m.blocks.whole_rows,
-                                                     self.J, self.stretch, self.J_seen, self.stretch_seen,
-                                                     self.recheck_change, m.blocks.points_for_rest(m.rest_points))
-        return element_volume_ratios_and_stretches(x, m.tets, m.Dm_inv, self.J, self.stretch, self.J_seen,
-                                                   self.stretch_seen, self.recheck_change)
+        """``self.J`` and ``self.stretch`` of every tet at positions ``x`` (``element_measure_call``).
+        Returns whether any tet moved by more than ``recheck_change`` since the last eigenvalue look
+        (NaN counts as moved)."""
+        kernel, arguments = element_measure_call(self.model, x, self.J, self.stretch, self.J_seen, self.stretch_seen,
+                                                 self.recheck_change)
+        compile_ahead.wait(kernel)
+        return kernel(*arguments)
 
     def _substeps(self, state, time, moved):
         """Sub-steps per planned step at the state whose J and stretch ``self`` holds; ``moved``: whether

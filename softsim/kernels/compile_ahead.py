@@ -1,20 +1,26 @@
-"""Compiling a kernel in a helper process while this one works.
+"""Compiling kernels in a helper process while this one works.
 
 A first run compiles its kernels one after another: Numba compiles in one thread, under a lock
 the whole process shares, so a second core sits idle.  The cantilever scene's first run took
-about 40 s of compiling on a 2-core machine, its step (``advance_colour``) 9-13 s of it.
-``submit`` hands specialisations that Numba's disk cache lacks to a helper process (``main``),
-which compiles them into that cache while this process goes on compiling the others; ``wait``, just before this process first calls one of them, blocks until
-the helper is done, and the call then loads the machine code from the cache.  The machine code is
-the same either way: the helper imports the same modules (and so sets the same LLVM options,
-``kernels.jit``) and compiles each function for the same argument types.
+about 40 s of compiling on a 2-core machine, its step (``advance_colour``) 9-13 s of it and the
+guard's measure of the tets 4-5 s.  ``submit`` hands specialisations that Numba's disk cache
+lacks to a helper process (``main``), which compiles them into that cache while this process
+goes on compiling the others; ``wait(kernel)``, just before this process first calls ``kernel``,
+blocks until the helper has compiled it, and the call then loads the machine code from the cache.
+The machine code is the same either way: the helper imports the same modules from the same
+``sys.path`` (and so sets the same LLVM options, ``kernels.jit``), loads Numba's extensions as a
+first call does, and compiles each function for the same argument types.  Both processes write
+the cache under a lock (``kernels.jit._save_data_first``).
 
 Nothing depends on the helper: if it cannot start, fails or dies, this process compiles what it
-lacks itself, as it would have without it.  Set ``SOFTSIM_COMPILE_AHEAD=0`` to never start one;
-none starts where only one core is available.
+lacks itself, as it would have without it.  The helper is never killed (a process stopped while
+it writes a cache entry could leave the entry half written): when this process stops waiting for
+it, or exits, the helper finishes the kernel it is compiling and then exits too.  It runs in a
+session of its own, so that a Ctrl-C, which asks a run to stop after its frame, does not stop it
+mid-write.  Set ``SOFTSIM_COMPILE_AHEAD=0`` to never start one; none starts where only one core
+is available.
 """
 
-import atexit
 import importlib
 import os
 import pickle
@@ -24,40 +30,60 @@ import time
 
 # ``SOFTSIM_COMPILE_AHEAD=0`` in the environment: never start a helper.
 ENVIRONMENT_SWITCH = "SOFTSIM_COMPILE_AHEAD"
-
-
-# Where this process imported softsim from: the helper imports the same files (``python -m``
-# would put the working folder first, which may hold another softsim than the one installed).
-_IMPORT_ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-_HELPER_CODE = "import sys; sys.path.insert(0, {path!r}); from softsim.kernels.compile_ahead import main; main()"
+# The line the helper writes as each item is done.
+DONE = b"compiled\n"
+# The helper's program: this process's import path first (``python -c`` would put the working
+# folder first, which may hold another softsim than the one this process imported).
+_HELPER_CODE = "import sys; sys.path[:] = {path!r}; from softsim.kernels.compile_ahead import main; main()"
 
 
 class _Helper:
-    """A helper process compiling ``count`` specialisations, reporting a line on its standard
-    output as each is done."""
+    """A helper process compiling ``items``, ``[(module, qualname, signature), ...]``, in their
+    order, writing ``DONE`` on its standard output as each is done.  Raises ``OSError`` where it
+    cannot be started or given its work."""
 
     def __init__(self, items):
-        self.count = len(items)
+        work = pickle.dumps(items)
+        self.functions = [(module, qualname) for module, qualname, _ in items]
         self.reported = 0
-        self.process = subprocess.Popen([sys.executable, "-c", _HELPER_CODE.format(path=_IMPORT_ROOT)],
-                                        stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
+        self.process = subprocess.Popen([sys.executable, "-c", _HELPER_CODE.format(path=sys.path)],
+                                        stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
+                                        start_new_session=True)
         try:
-            self.process.stdin.write(pickle.dumps(items))
+            self.process.stdin.write(work)
             self.process.stdin.close()
-        except OSError:          # it died at once; whatever it did not compile, the caller will
-            self.stop()
+        except OSError:
+            self.release()
+            raise
 
-    def wait(self):
-        """Block until every item is reported, or the helper has exited."""
-        while self.reported < self.count and self.process.stdout.readline():
-            self.reported += 1
-        self.stop()
+    def items_through(self, dispatcher):
+        """How many items must be done before ``dispatcher``'s are all done (0: none is its)."""
+        function = (dispatcher.py_func.__module__, dispatcher.py_func.__qualname__)
+        return max((k + 1 for k, item in enumerate(self.functions) if item == function), default=0)
 
-    def stop(self):
-        if self.process.poll() is None:
-            self.process.kill()
-        self.process.wait()
+    def wait(self, count):
+        """Block until ``count`` items are done, or the helper has exited; returns whether it has
+        nothing more to do for this process (then released)."""
+        try:
+            while self.reported < count:
+                line = self.process.stdout.readline()
+                if not line:
+                    break
+                self.reported += line == DONE
+        except BaseException:
+            self.release()
+            raise
+        if self.reported < count or self.reported == len(self.functions):
+            self.release()
+            return True
+        return False
+
+    def release(self):
+        """Stop listening: a helper with nothing left exits; one still compiling finishes its
+        current item and exits when it finds nobody reading its reports."""
         self.process.stdout.close()
+        if self.reported == len(self.functions):
+            self.process.wait()
 
 
 _helper = None
@@ -78,7 +104,8 @@ def enabled():
 
 
 def argument_types(dispatcher, arguments):
-    """The signature ``dispatcher`` compiles for a call with ``arguments`` (a tuple)."""
+    """The signature ``dispatcher`` compiles for a call with ``arguments`` (a tuple): the types
+    its own ``typeof_pyval`` gives them, as a call does."""
     return tuple(dispatcher.typeof_pyval(a) for a in arguments)
 
 
@@ -98,11 +125,13 @@ def is_compiled_or_cached(dispatcher, signature):
 
 def submit(calls):
     """Compile ``calls``, ``[(dispatcher, arguments), ...]`` (each a cached jitted function and a
-    tuple of arguments of the types it will be called with), in a helper process, those the disk
-    cache lacks; returns how many were handed over (0: none lacking, or no helper allowed, or one
-    already running).  Call ``wait`` before calling any of them."""
+    tuple of arguments of the types it will be called with), those the disk cache lacks, in a
+    helper process, in their order; a helper given work before is released first (``release``).
+    Returns how many were handed over (0: none lacking, or no helper allowed or started).  Call
+    ``wait(dispatcher)`` before calling any of them."""
     global _helper
-    if _helper is not None or not enabled():
+    release()
+    if not enabled():
         return 0
     items = []
     for dispatcher, arguments in calls:
@@ -118,29 +147,37 @@ def submit(calls):
     return len(items)
 
 
-def wait():
-    """Block until the helper (if one is running) has compiled what it was given; the seconds
-    waited count in ``waited_seconds``.  Returns at once when no helper runs."""
+def wait(dispatcher=None):
+    """Block until the helper (if one runs) has compiled what it was given for ``dispatcher`` (a
+    jitted function; None: everything it was given); the seconds waited count in
+    ``waited_seconds``.  Returns at once when no helper runs or it was given nothing of ``dispatcher``."""
     global _helper, _waited_s
     if _helper is None:
         return
+    count = len(_helper.functions) if dispatcher is None else _helper.items_through(dispatcher)
+    if count == 0:
+        return
     started = time.perf_counter()
+    finished = True
     try:
-        _helper.wait()
+        finished = _helper.wait(count)
     finally:
-        _helper = None
+        if finished:
+            _helper = None
         _waited_s += time.perf_counter() - started
+
+
+def release():
+    """Stop waiting for the helper, if one runs (``_Helper.release``)."""
+    global _helper
+    if _helper is not None:
+        _helper.release()
+        _helper = None
 
 
 def waited_seconds():
     """Seconds this process has spent in ``wait`` (``jit.compile_timer`` counts them as compiling)."""
     return _waited_s
-
-
-@atexit.register
-def _stop_helper():
-    if _helper is not None:
-        _helper.stop()
 
 
 def _compile_items(items, report):
@@ -158,12 +195,21 @@ def _compile_items(items, report):
 
 
 def main():
+    """The helper: reads the items pickled on its standard input, compiles them
+    (``_compile_items``) and writes ``DONE`` to its standard output after each; anything else
+    written to the standard output (Numba's debug output) goes to the standard error instead.
+    Exits when nobody reads its reports any more."""
     items = pickle.loads(sys.stdin.buffer.read())
+    reports = os.fdopen(os.dup(sys.stdout.fileno()), "wb", buffering=0)
+    os.dup2(sys.stderr.fileno(), sys.stdout.fileno())
+    from numba.core import entrypoints
+
+    entrypoints.init_all()        # as a dispatcher's first call does, before it compiles
 
     def report():
-        sys.stdout.write("compiled\n")
-        sys.stdout.flush()
+        reports.write(DONE)
 
-    _compile_items(items, report)
-
-
+    try:
+        _compile_items(items, report)
+    except BrokenPipeError:
+        pass

@@ -12,6 +12,8 @@ Numba checks a cached function only against its *own* source file, yet the machi
 contains every jitted function it calls from other files (a driver in ``forces.py`` inlines the
 material law of ``materials/models.py``).  Each cache entry is therefore also stamped with a hash
 of the sources of the jitted packages: editing any of them recompiles instead of running stale code.
+Entries are read and written under a lock on the cache folder, the data before the index that
+names them (``_save_data_first``): several processes may fill one cache at once.
 """
 
 import contextlib
@@ -19,7 +21,13 @@ import ctypes
 import functools
 import hashlib
 import importlib.metadata
+import itertools
 import os
+
+try:
+    import fcntl
+except ImportError:              # Windows: Numba's cache is used without locks
+    fcntl = None
 
 import llvmlite.binding
 import numba
@@ -142,19 +150,75 @@ def _package_source_hash():
 
 
 _SOURCE_HASH = _package_source_hash()
+# The file in each cache folder (a ``__pycache__`` of softsim's, or under NUMBA_CACHE_DIR) whose
+# lock orders the reading and writing of cache entries between processes.
+CACHE_LOCK_NAME = "softsim-numba-cache.lock"
 
 
-def _stamp_with_package_hash(dispatcher):
-    """Make ``dispatcher``'s on-disk cache stale whenever any softsim source file changes."""
+@contextlib.contextmanager
+def _cache_folder_lock(cache_file, exclusive):
+    """Hold an advisory lock (``flock``) on the folder of a Numba cache file while inside: shared to
+    read an entry, exclusive to write one.  Where locks are not to be had (no ``fcntl``, a folder
+    not there yet or not writable), no lock."""
+    try:
+        fd = os.open(os.path.join(cache_file._cache_path, CACHE_LOCK_NAME), os.O_RDWR | os.O_CREAT, 0o666)
+    except (OSError, AttributeError):
+        fd = None
+    try:
+        if fd is not None and fcntl is not None:
+            fcntl.flock(fd, fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH)
+        yield
+    finally:
+        if fd is not None:
+            os.close(fd)
+
+
+def _load_locked(cache_file, key):
+    """``IndexDataCacheFile.load``, under the cache folder's shared lock."""
+    with _cache_folder_lock(cache_file, exclusive=False):
+        return type(cache_file).load(cache_file, key)
+
+
+def _save_data_first(cache_file, key, data):
+    """``IndexDataCacheFile.save``, under the cache folder's exclusive lock, writing the data file
+    before the index that names it.
+
+    Numba writes the index first and picks the data file's number from the index it has read: two
+    processes saving entries of one function at once (the helper of ``compile_ahead`` and this
+    process compiling a kernel both call, or two test workers) could both pick a number and leave
+    the index naming a file holding the other's code, and a process stopped between the two writes
+    an index naming a file of an older source (Numba overwrites stale data files only as it reuses
+    their numbers).  Locked and in this order, an index only ever names complete data of its key."""
+    with _cache_folder_lock(cache_file, exclusive=True):
+        overloads = cache_file._load_index()
+        data_name = overloads.get(key)
+        if data_name is None:
+            taken = set(overloads.values())
+            data_name = next(name for name in map(cache_file._data_name, itertools.count(1)) if name not in taken)
+        cache_file._save_data(data_name, data)
+        if overloads.get(key) != data_name:
+            overloads[key] = data_name
+            cache_file._save_index(overloads)
+
+
+# Numba's private names the two functions above use; where a Numba lacks them, its own are kept.
+_CACHE_FILE_NAMES = ("_cache_path", "_load_index", "_data_name", "_save_data", "_save_index", "_source_stamp")
+
+
+def _prepare_disk_cache(dispatcher):
+    """Make ``dispatcher``'s on-disk cache stale whenever any softsim source file changes, and
+    read and write its entries under a lock (``_load_locked``, ``_save_data_first``)."""
     cache_file = getattr(getattr(dispatcher, "_cache", None), "_cache_file", None)
-    if cache_file is not None and hasattr(cache_file, "_source_stamp"):
+    if cache_file is not None and all(hasattr(cache_file, name) for name in _CACHE_FILE_NAMES):
         cache_file._source_stamp = (cache_file._source_stamp, _SOURCE_HASH)
+        cache_file.load = functools.partial(_load_locked, cache_file)
+        cache_file.save = functools.partial(_save_data_first, cache_file)
     return dispatcher
 
 
 def njit(func):
     """Compile ``func`` as a serial, cached Numba function."""
-    return _stamp_with_package_hash(numba.njit(**JIT_OPTIONS)(func))
+    return _prepare_disk_cache(numba.njit(**JIT_OPTIONS)(func))
 
 
 def njit_inline(func):
@@ -184,7 +248,7 @@ def njit_inline(func):
 
 def njit_parallel(func):
     """Compile ``func`` as a cached Numba function whose ``prange`` loops run in parallel."""
-    return _stamp_with_package_hash(numba.njit(parallel=True, **JIT_OPTIONS)(func))
+    return _prepare_disk_cache(numba.njit(parallel=True, **JIT_OPTIONS)(func))
 
 
 class CompileTimeConstant(int):
