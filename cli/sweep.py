@@ -126,14 +126,14 @@ def sweep(sweep_file, output_dir, workers, scheduler, shared_dir, force, dry_run
     skipped = f" ({len(runs) - len(to_run)} already complete)" if len(to_run) < len(runs) else ""
     if not to_run:
         client_context, numba_threads = contextlib.nullcontext(None), None
+        where = None
     elif scheduler is not None:
         client_context, numba_threads = remote_client(scheduler), None
-        log.info("sweep: %d runs%s on the cluster at %s", len(to_run), skipped, scheduler)
+        where = f"the cluster at {scheduler}"
     else:
         workers, numba_threads = local_layout(max(1, len(to_run)), workers)
         client_context = local_client(workers, numba_threads)
-        log.info("sweep: %d runs%s on %d local workers x %d Numba threads", len(to_run), skipped, workers,
-                 numba_threads)
+        where = f"{workers} local workers x {numba_threads} Numba threads"
 
     bar = None
 
@@ -149,6 +149,8 @@ def sweep(sweep_file, output_dir, workers, scheduler, shared_dir, force, dry_run
     result = None
     try:
         with _sigterm_as_interrupt(), client_context as client:
+            if where is not None:       # said once connected: a cluster that does not answer is an error first
+                log.info("sweep: %d runs%s on %s", len(to_run), skipped, where)
             result = run_sweep(runs, output_dir, client, shared_dir=shared_dir is not None, force=force,
                                numba_threads=numba_threads, progress=progress)
     except KeyboardInterrupt:

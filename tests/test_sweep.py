@@ -475,3 +475,83 @@ def test_plot_summary(tmp_path):
     assert image.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     with pytest.raises(ConfigError, match="plot column 'tip'"):
         plot_summary(summary, tmp_path / "plot.png", "material.youngs_modulus", "tip")
+
+
+def test_runs_lost_with_their_workers_are_submitted_again(tmp_path, client):
+    """Every worker restarted once the first run is done (as if all died at once): the runs that
+    were on them, and the mesh the client had sent, are gone; the runs are submitted again, the
+    mesh sent again, and all finish."""
+    sweep = {"base": "bar.yaml", "parameters": {"material.youngs_modulus": [1e6, 2e6, 3e6, 4e6, 5e6, 6e6]}}
+    out = tmp_path / "out"
+    out.mkdir()
+    runs = expand_sweep(load_sweep(write_sweep(tmp_path, sweep)), out)
+    restarted = []
+
+    def restart_once(done, failed, running, total):
+        if done >= 1 and not restarted:
+            restarted.append(done)
+            client.restart()
+
+    result = run_sweep(runs, out, client, progress=restart_once)
+    assert restarted and result.counts["complete"] == 6, [row["status_reason"] for row in result.failed]
+    assert all((out / row["file"]).is_file() for row in result.rows)
+
+
+def test_a_shared_dir_this_machine_does_not_see_fails_the_runs(tmp_path, client, monkeypatch):
+    """With --shared-dir, a worker that writes where this machine does not see the file (another
+    folder at that path on its host) does not pass for a complete run."""
+    sweep = {"base": "bar.yaml", "parameters": {"material.youngs_modulus": [1e6, 2e6]}}
+    out, elsewhere = tmp_path / "out", tmp_path / "the worker's folder"
+    out.mkdir()
+    elsewhere.mkdir()
+    runs = expand_sweep(load_sweep(write_sweep(tmp_path, sweep)), out)
+    execute_run = runner.execute_run
+
+    def writes_elsewhere(scene, mesh, name, target_dir=None, numba_threads=None):   # sent to the workers by value
+        return execute_run(scene, mesh, name, str(elsewhere), numba_threads)
+
+    monkeypatch.setattr(runner, "execute_run", writes_elsewhere)
+    result = run_sweep(runs, out, client, shared_dir=True)
+    assert result.counts["failed"] == 2 and len(list(elsewhere.glob("*.h5"))) == 2
+    assert all("this machine does not see it there: --shared-dir must be a folder" in row["status_reason"]
+               for row in result.rows)
+
+
+def test_a_cluster_without_workers_is_named_in_one_line():
+    distributed = import_distributed()
+    with distributed.LocalCluster(n_workers=0, processes=False, dashboard_address=":0") as cluster:
+        address = cluster.scheduler_address
+        with pytest.raises(SimulationError) as raised:
+            with runner.remote_client(address, worker_wait_s=0.5):
+                pass
+    assert str(raised.value) == (f"--scheduler {address}: the cluster has no workers (none joined in 0.5 s); "
+                                 f"start some with: dask worker {address}")
+
+
+@pytest.mark.parametrize("address", ["tcp://127.0.0.1:87x99", "tcp://127.0.0.1:1"])
+def test_a_scheduler_that_is_not_there_is_one_line(tmp_path, address):
+    path = write_sweep(tmp_path, {"base": "bar.yaml", "parameters": {"material.youngs_modulus": [1e6, 2e6]}})
+    result = CliRunner().invoke(cli, ["sweep", str(path), "-o", str(tmp_path / "out"), "--scheduler", address])
+    assert result.exit_code == 1
+    assert f"--scheduler {address}: cannot connect (" in result.output
+    assert "is a Dask scheduler running there" in result.output and "Traceback" not in result.output
+    assert "sweep: 2 runs" not in result.output
+
+
+def test_a_run_file_still_being_written_stops_the_sweep_before_any_run(tmp_path):
+    """A file another run writes now (a run of an earlier sweep that a cluster's worker goes on
+    with, after the sweep was interrupted) is named before anything runs, and left alone."""
+    from softsim.io.hdf5 import RunWriter
+
+    sweep = {"base": "bar.yaml", "parameters": {"material.youngs_modulus": [1e6, 2e6]}}
+    out = tmp_path / "out"
+    runs = expand_sweep(load_sweep(write_sweep(tmp_path, sweep)), out)
+    out.mkdir()
+    prepared = prepare(runs[1].scene)
+    model = prepared.model
+    with RunWriter(runs[1].path, model.mesh.points, model.mesh.tets, model.fixed, "{}", prepared.plan.dt,
+                   prepared.plan.total_steps, ["velocities"], frames=2):
+        with pytest.raises(SimulationError, match=r"run 2 \(youngs_modulus=2e\+06\): another run is writing "
+                                                  r".* now \(one of an earlier sweep still going on a worker\?\)"):
+            plan_runs(runs)
+    assert runs[1].path.is_file()

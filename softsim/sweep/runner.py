@@ -39,6 +39,11 @@ SUMMARY_NAME = "summary"
 NOT_FINISHED = "interrupted"
 # Seconds a mesh's scatter to the workers may take before the runs carry the mesh themselves.
 SCATTER_TIMEOUT_S = 120.0
+# Times a run is submitted again when Dask cancels it because a worker died with it or with its
+# mesh (the scattered mesh is then sent again): once per lost worker, at most this often.
+LOST_RUN_RESUBMITS = 3
+# Seconds to wait, on connecting to a cluster that has no workers, for one to join.
+WORKER_WAIT_S = 30.0
 
 
 def import_distributed():
@@ -152,12 +157,13 @@ def plan_runs(runs, force=False):
     record it is rerun).
 
     A file that is not complete (failed, interrupted, left running by a killed sweep) is
-    replaced.  A complete file written for a different scene is not replaced without ``force``:
+    replaced, unless a run still writes it (a run of an earlier sweep that a cluster's worker
+    goes on with): ``SimulationError``, before anything runs.  A complete file written for a different scene is not replaced without ``force``:
     ``SimulationError`` naming the run and the first differing key, before anything runs.
     """
     import yaml
 
-    from ..io.hdf5 import run_attributes
+    from ..io.hdf5 import being_written, run_attributes
     from ..simulation import run_file_difference
 
     to_run, to_skip = [], []
@@ -169,6 +175,9 @@ def plan_runs(runs, force=False):
             continue
         if path.is_dir():
             raise SimulationError(f"run {run.index + 1} ({run.name}): {path} is a directory")
+        if being_written(path):
+            raise SimulationError(f"run {run.index + 1} ({run.name}): another run is writing {path} now (one of "
+                                  f"an earlier sweep still going on a worker?); wait for it to end")
         stored = run_attributes(path)
         status = stored.get("status", "")
         if "config" not in stored:
@@ -294,6 +303,14 @@ def scatter_meshes(client, meshes, timeout=None):
     return scattered
 
 
+def _send_lost_mesh_again(client, meshes, mesh_futures, key):
+    """Scatter mesh ``key`` of ``meshes`` again if the workers lost it (``mesh_futures[key]``, a
+    future of ``scatter_meshes``, no longer finished), for the runs submitted from now on."""
+    scattered = mesh_futures[key]
+    if getattr(scattered, "status", "finished") != "finished":
+        mesh_futures[key] = scatter_meshes(client, {key: meshes[key]})[key]
+
+
 @contextlib.contextmanager
 def _sigint_ignored_in_children():
     """While inside, SIGINT is ignored, so worker processes started now ignore Ctrl-C.
@@ -337,14 +354,44 @@ def local_client(workers, numba_threads):
 
 
 @contextlib.contextmanager
-def remote_client(address):
-    """A ``distributed.Client`` connected to the scheduler at ``address`` (``tcp://host:port``)."""
+def remote_client(address, worker_wait_s=None):
+    """A ``distributed.Client`` connected to the scheduler at ``address`` (``tcp://host:port``)
+    that has a worker: one that has none is waited for ``worker_wait_s`` (``WORKER_WAIT_S``) to
+    get one.  ``SimulationError``, one line, where nothing answers at ``address``, it is not an
+    address, or no worker came."""
     distributed = import_distributed()
+    worker_wait_s = WORKER_WAIT_S if worker_wait_s is None else worker_wait_s
+    # Dask's own warnings (a result gathered again after a worker died) say nothing softsim's
+    # summary does not, in Dask's terms: a local cluster silences them too (``silence_logs``)
+    # (Dask's logging configuration gives ``distributed.client`` a level and a handler of its own.)
+    dask_logs = [logging.getLogger(name) for name in ("distributed", "distributed.client")]
+    levels = [dask_log.level for dask_log in dask_logs]
+    for dask_log in dask_logs:
+        dask_log.setLevel(logging.ERROR)
+    try:
+        with _connected(distributed, address, worker_wait_s) as client:
+            yield client
+    finally:
+        for dask_log, level in zip(dask_logs, levels):
+            dask_log.setLevel(level)
+
+
+@contextlib.contextmanager
+def _connected(distributed, address, worker_wait_s):
+    """``remote_client``'s client, connected and with a worker."""
     try:
         client = distributed.Client(address, timeout="10s")
-    except (OSError, TimeoutError) as exc:
-        raise SimulationError(f"--scheduler {address}: cannot connect ({exc})") from None
+    except (OSError, TimeoutError, ValueError, TypeError) as exc:
+        reason = (str(exc).splitlines() or [type(exc).__name__])[0]
+        raise SimulationError(f"--scheduler {address}: cannot connect ({reason}); is a Dask scheduler running "
+                              f"there (dask scheduler), and is the address tcp://HOST:PORT?") from None
     with client:
+        if not client.nthreads():
+            try:
+                client.wait_for_workers(1, timeout=worker_wait_s)
+            except (TimeoutError, asyncio.TimeoutError):
+                raise SimulationError(f"--scheduler {address}: the cluster has no workers (none joined in "
+                                      f"{worker_wait_s:g} s); start some with: dask worker {address}") from None
         yield client
 
 
@@ -360,9 +407,13 @@ def run_sweep(runs, output_dir, client, shared_dir=False, force=False, numba_thr
     running, total)`` after each run finishes (``done`` counts skipped runs).
 
     Runs whose file is complete with the same scene are skipped; every other run is (re)run, and
-    one that fails (the blow-up guard, a ``SoftsimError``, a bug, a lost worker) does not stop the
-    others.  On ``KeyboardInterrupt`` the remaining runs are cancelled, the summary of what
-    finished is written, and the interrupt goes on.
+    one that fails (the blow-up guard, a ``SoftsimError``, a bug, a run that kills its workers)
+    does not stop the others.  A run Dask cancels because a worker died with it or with its mesh
+    is submitted again (the mesh scattered again), up to ``LOST_RUN_RESUBMITS`` times.  With
+    ``shared_dir``, a run whose file this machine does not see where the worker wrote it fails.
+    On ``KeyboardInterrupt`` the runs not started are cancelled (those running on a cluster's
+    workers run on: Dask cannot stop a task), the summary of what finished is written, and the
+    interrupt goes on.
     """
     output_dir = Path(output_dir).absolute()
     to_run, to_skip = plan_runs(runs, force)
@@ -380,12 +431,19 @@ def run_sweep(runs, output_dir, client, shared_dir=False, force=False, numba_thr
         distributed = import_distributed() if to_run else None
         mesh_futures = scatter_meshes(client, meshes)
         target = str(output_dir) if shared_dir else None
-        for run in to_run:
+        resubmits = dict.fromkeys((run.index for run in to_run), 0)
+
+        def submit(run):
             future = client.submit(execute_run, run.scene, mesh_futures[mesh_keys[run.index]], run.name,
                                    target, numba_threads, key=f"softsim-run-{run.index}-{os.urandom(4).hex()}",
                                    pure=False, retries=0)
             futures[future] = run
-        for future in distributed.as_completed(list(futures)) if futures else ():
+            return future
+
+        for run in to_run:
+            submit(run)
+        finished = distributed.as_completed(list(futures)) if futures else ()
+        for future in finished:
             run = futures.pop(future)   # released once read: a run's bytes leave the worker's memory
             try:
                 outcome = future.result()
@@ -396,7 +454,19 @@ def run_sweep(runs, output_dir, client, shared_dir=False, force=False, numba_thr
                 if outcome["files"]:
                     _write_files(outcome["files"], output_dir)
                 metrics = outcome["metrics"]
-            except Exception as exc:    # the worker died (KilledWorker) or the result could not come back
+                if shared_dir and metrics is not None and not run.path.is_file():
+                    error, metrics = (f"the worker on {outcome['host']} wrote {run.path}, but this machine does not "
+                                      f"see it there: --shared-dir must be a folder this machine and every worker "
+                                      f"see at the same path"), None
+            except distributed.client.FutureCancelledError as exc:   # its worker, or its mesh's, died
+                if resubmits[run.index] < LOST_RUN_RESUBMITS:
+                    resubmits[run.index] += 1
+                    _send_lost_mesh_again(client, meshes, mesh_futures, mesh_keys[run.index])
+                    finished.add(submit(run))
+                    continue
+                error, metrics = (f"lost {resubmits[run.index] + 1} times with a worker that died (Dask: "
+                                  f"{(str(exc).splitlines() or [''])[0]})"), None
+            except Exception as exc:    # the run killed its workers (KilledWorker) or the result could not come back
                 error, metrics = (f"{type(exc).__name__}: {exc}".splitlines() or [""])[0], None
             if metrics is None:         # an older file of this run would contradict the summary
                 for stale in (run.path, xdmf_path_for(run.path)):
