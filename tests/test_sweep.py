@@ -10,6 +10,7 @@ import csv
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import h5py
@@ -507,8 +508,8 @@ def test_a_shared_dir_this_machine_does_not_see_fails_the_runs(tmp_path, client,
     runs = expand_sweep(load_sweep(write_sweep(tmp_path, sweep)), out)
     execute_run = runner.execute_run
 
-    def writes_elsewhere(scene, mesh, name, target_dir=None, numba_threads=None):   # sent to the workers by value
-        return execute_run(scene, mesh, name, str(elsewhere), numba_threads)
+    def writes_elsewhere(scene, mesh, name, target_dir, *rest):   # sent to the workers by value
+        return execute_run(scene, mesh, name, str(elsewhere), *rest)
 
     monkeypatch.setattr(runner, "execute_run", writes_elsewhere)
     result = run_sweep(runs, out, client, shared_dir=True)
@@ -555,3 +556,32 @@ def test_a_run_file_still_being_written_stops_the_sweep_before_any_run(tmp_path)
                                                   r".* now \(one of an earlier sweep still going on a worker\?\)"):
             plan_runs(runs)
     assert runs[1].path.is_file()
+
+
+def test_ctrl_c_stops_the_runs_a_cluster_is_running(tmp_path, client):
+    """Ctrl-C on a sweep with --shared-dir: the runs already on the workers (which Dask cannot
+    stop) end at their next frame, their files marked interrupted, instead of running on (these
+    would take tens of seconds) and writing files the summary calls interrupted."""
+    from softsim.io.hdf5 import being_written, run_attributes
+
+    sweep = {"base": "bar.yaml", "parameters": {"time.duration": [0.005, 600.0, 601.0]},
+             "set": {"output.frame_interval": 0.1}}
+    out = tmp_path / "out"
+    out.mkdir()
+    runs = expand_sweep(load_sweep(write_sweep(tmp_path, sweep)), out)
+
+    def interrupt(done, failed, running, total):
+        if done >= 1:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_sweep(runs, out, client, shared_dir=True, progress=interrupt)
+    # a started run's file appears within a second or two (a run waiting on a worker is cancelled
+    # before it starts); stopped, it is not written after its next frame
+    started = [run.path for run in runs[1:]]
+    deadline = time.monotonic() + runner.STOP_POLL_S + 15.0
+    while time.monotonic() < deadline and (not any(p.is_file() for p in started) or any(map(being_written, started))):
+        time.sleep(0.2)
+    statuses = [run_attributes(run.path)["status"] if run.path.is_file() else None for run in runs]
+    assert statuses[0] == "complete" and "interrupted" in statuses[1:], statuses
+    assert set(statuses[1:]) <= {None, "interrupted"}, statuses      # not started, or started and stopped

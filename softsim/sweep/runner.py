@@ -44,6 +44,9 @@ SCATTER_TIMEOUT_S = 120.0
 LOST_RUN_RESUBMITS = 3
 # Seconds to wait, on connecting to a cluster that has no workers, for one to join.
 WORKER_WAIT_S = 30.0
+# A run on a worker asks the scheduler whether its sweep was stopped (Ctrl-C) at its frames, at
+# most once in this many seconds.
+STOP_POLL_S = 1.0
 
 
 def import_distributed():
@@ -82,14 +85,16 @@ def local_layout(run_count, workers=None, cores=None):
 # Worker side
 
 
-def execute_run(scene, mesh, name, target_dir=None, numba_threads=None):
+def execute_run(scene, mesh, name, target_dir=None, numba_threads=None, stop_event=None):
     """Run one sweep run on a worker; returns a dict (never raises for a failed run).
 
     scene: the run's validated scene; mesh: its built ``TetMesh``; target_dir: a folder the client
     also sees (write the file there), or None (write to a local temporary folder and return the
     bytes of ``<name>.h5`` and ``<name>.xdmf`` under ``files``).  numba_threads: Numba threads
-    for this run, or None to leave the worker's setting.  The dict has ``name``, ``error`` (one
-    line, or None), ``metrics`` (None if no file was written), ``numba_threads``, ``host``.
+    for this run, or None to leave the worker's setting.  stop_event: the name of the sweep's
+    ``distributed.Event``: once it is set, the run ends at its next frame, its file ``interrupted``
+    (``stop_requested``).  The dict has ``name``, ``error`` (one line, or None), ``metrics`` (None
+    if no file was written), ``numba_threads``, ``host``.
     """
     import numba
 
@@ -105,7 +110,7 @@ def execute_run(scene, mesh, name, target_dir=None, numba_threads=None):
     log.addHandler(catcher)
     try:
         try:
-            simulate(prepare(scene, mesh), path)
+            simulate(prepare(scene, mesh), path, should_stop=stop_requested(stop_event) if stop_event else None)
         except SoftsimError as exc:
             result["error"] = str(exc)
         except Exception as exc:    # a bug must not stop the other runs; the file says failed too
@@ -119,6 +124,26 @@ def execute_run(scene, mesh, name, target_dir=None, numba_threads=None):
         log.removeHandler(catcher)
         if target_dir is None:
             shutil.rmtree(folder, ignore_errors=True)
+
+
+def stop_requested(event_name, every_s=None):
+    """A ``should_stop()`` for ``simulation.simulate`` on a worker: whether the sweep's
+    ``distributed.Event`` ``event_name`` is set, asked of the scheduler at most every ``every_s``
+    seconds (``STOP_POLL_S``) and the last answer given in between."""
+    import time
+
+    distributed = import_distributed()
+    event = distributed.Event(event_name)
+    every_s = STOP_POLL_S if every_s is None else every_s
+    asked = {"at": -math.inf, "set": False}
+
+    def should_stop():
+        now = time.monotonic()
+        if now - asked["at"] >= every_s:
+            asked["at"], asked["set"] = now, event.is_set()
+        return asked["set"]
+
+    return should_stop
 
 
 class _ListHandler(logging.Handler):
@@ -411,9 +436,9 @@ def run_sweep(runs, output_dir, client, shared_dir=False, force=False, numba_thr
     does not stop the others.  A run Dask cancels because a worker died with it or with its mesh
     is submitted again (the mesh scattered again), up to ``LOST_RUN_RESUBMITS`` times.  With
     ``shared_dir``, a run whose file this machine does not see where the worker wrote it fails.
-    On ``KeyboardInterrupt`` the runs not started are cancelled (those running on a cluster's
-    workers run on: Dask cannot stop a task), the summary of what finished is written, and the
-    interrupt goes on.
+    On ``KeyboardInterrupt`` the runs not started are cancelled and those running are asked to
+    stop at their next frame (``stop_requested``; Dask cannot stop a task), the summary of what
+    finished is written, and the interrupt goes on.
     """
     output_dir = Path(output_dir).absolute()
     to_run, to_skip = plan_runs(runs, force)
@@ -432,11 +457,12 @@ def run_sweep(runs, output_dir, client, shared_dir=False, force=False, numba_thr
         mesh_futures = scatter_meshes(client, meshes)
         target = str(output_dir) if shared_dir else None
         resubmits = dict.fromkeys((run.index for run in to_run), 0)
+        stop_event = f"softsim-sweep-stop-{os.urandom(8).hex()}"
 
         def submit(run):
             future = client.submit(execute_run, run.scene, mesh_futures[mesh_keys[run.index]], run.name,
-                                   target, numba_threads, key=f"softsim-run-{run.index}-{os.urandom(4).hex()}",
-                                   pure=False, retries=0)
+                                   target, numba_threads, stop_event,
+                                   key=f"softsim-run-{run.index}-{os.urandom(4).hex()}", pure=False, retries=0)
             futures[future] = run
             return future
 
@@ -479,6 +505,8 @@ def run_sweep(runs, output_dir, client, shared_dir=False, force=False, numba_thr
                 progress(done, failed, min(slots, total - done), total)
     except KeyboardInterrupt:
         result.cancelled = True
+        if futures:         # the runs already started stop at their next frame: Dask cannot stop a task
+            distributed.Event(stop_event, client=client).set()
         client.cancel(list(futures), force=True)
         raise
     finally:
