@@ -585,3 +585,36 @@ def test_ctrl_c_stops_the_runs_a_cluster_is_running(tmp_path, client):
     statuses = [run_attributes(run.path)["status"] if run.path.is_file() else None for run in runs]
     assert statuses[0] == "complete" and "interrupted" in statuses[1:], statuses
     assert set(statuses[1:]) <= {None, "interrupted"}, statuses      # not started, or started and stopped
+
+
+def test_a_run_whose_worker_dies_is_named_so(tmp_path, client, monkeypatch):
+    """A run that takes its worker process down with it, every time it is tried, fails with a
+    reason in the user's terms, and the other run completes (it is let finish first, so that it
+    is never the one lost beside it).  Dask tries a task on a new worker until it has killed 2
+    (``allowed_failures`` 1 here, 3 by default); a death that also takes the scattered mesh makes
+    it cancel the run instead, which the sweep submits again: either way ends in words."""
+    sweep = {"base": "bar.yaml", "parameters": {"material.youngs_modulus": [1e6, 2e6]}}
+    out = tmp_path / "out"
+    out.mkdir()
+    runs = expand_sweep(load_sweep(write_sweep(tmp_path, sweep)), out)
+    execute_run, first_done = runner.execute_run, tmp_path / "first run done"
+
+    def second_dies_after_the_first(scene, mesh, name, *rest):     # sent to the workers by value
+        if name == runs[1].name:
+            deadline = time.monotonic() + 60.0
+            while not first_done.exists() and time.monotonic() < deadline:
+                time.sleep(0.05)
+            os._exit(1)
+        return execute_run(scene, mesh, name, *rest)
+
+    def first_done_here(done, failed, running, total):   # its result is in: no worker holds it any more
+        if done == 1 and not failed:
+            first_done.touch()
+
+    monkeypatch.setattr(runner, "execute_run", second_dies_after_the_first)
+    monkeypatch.setattr(client.cluster.scheduler, "allowed_failures", 1)
+    result = run_sweep(runs, out, client, progress=first_done_here)
+    assert [row["status"] for row in result.rows] == ["complete", "failed"], result.rows
+    reason = result.rows[1]["status_reason"]
+    assert (reason.startswith("the worker process running it died, on every try")
+            or reason.startswith(f"lost {runner.LOST_RUN_RESUBMITS + 1} times with a worker that died")), reason

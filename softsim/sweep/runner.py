@@ -39,8 +39,8 @@ SUMMARY_NAME = "summary"
 NOT_FINISHED = "interrupted"
 # Seconds a mesh's scatter to the workers may take before the runs carry the mesh themselves.
 SCATTER_TIMEOUT_S = 120.0
-# Times a run is submitted again when Dask cancels it because a worker died with it or with its
-# mesh (the scattered mesh is then sent again): once per lost worker, at most this often.
+# Times a run is submitted again, carrying its mesh, when Dask cancels it because a worker died
+# with it or with its scattered mesh: once per lost worker, at most this often.
 LOST_RUN_RESUBMITS = 3
 # Seconds to wait, on connecting to a cluster that has no workers, for one to join.
 WORKER_WAIT_S = 30.0
@@ -328,14 +328,6 @@ def scatter_meshes(client, meshes, timeout=None):
     return scattered
 
 
-def _send_lost_mesh_again(client, meshes, mesh_futures, key):
-    """Scatter mesh ``key`` of ``meshes`` again if the workers lost it (``mesh_futures[key]``, a
-    future of ``scatter_meshes``, no longer finished), for the runs submitted from now on."""
-    scattered = mesh_futures[key]
-    if getattr(scattered, "status", "finished") != "finished":
-        mesh_futures[key] = scatter_meshes(client, {key: meshes[key]})[key]
-
-
 @contextlib.contextmanager
 def _sigint_ignored_in_children():
     """While inside, SIGINT is ignored, so worker processes started now ignore Ctrl-C.
@@ -434,7 +426,7 @@ def run_sweep(runs, output_dir, client, shared_dir=False, force=False, numba_thr
     Runs whose file is complete with the same scene are skipped; every other run is (re)run, and
     one that fails (the blow-up guard, a ``SoftsimError``, a bug, a run that kills its workers)
     does not stop the others.  A run Dask cancels because a worker died with it or with its mesh
-    is submitted again (the mesh scattered again), up to ``LOST_RUN_RESUBMITS`` times.  With
+    is submitted again, carrying its mesh, up to ``LOST_RUN_RESUBMITS`` times.  With
     ``shared_dir``, a run whose file this machine does not see where the worker wrote it fails.
     On ``KeyboardInterrupt`` the runs not started are cancelled and those running are asked to
     stop at their next frame (``stop_requested``; Dask cannot stop a task), the summary of what
@@ -459,15 +451,14 @@ def run_sweep(runs, output_dir, client, shared_dir=False, force=False, numba_thr
         resubmits = dict.fromkeys((run.index for run in to_run), 0)
         stop_event = f"softsim-sweep-stop-{os.urandom(8).hex()}"
 
-        def submit(run):
-            future = client.submit(execute_run, run.scene, mesh_futures[mesh_keys[run.index]], run.name,
-                                   target, numba_threads, stop_event,
+        def submit(run, mesh):
+            future = client.submit(execute_run, run.scene, mesh, run.name, target, numba_threads, stop_event,
                                    key=f"softsim-run-{run.index}-{os.urandom(4).hex()}", pure=False, retries=0)
             futures[future] = run
             return future
 
         for run in to_run:
-            submit(run)
+            submit(run, mesh_futures[mesh_keys[run.index]])
         finished = distributed.as_completed(list(futures)) if futures else ()
         for future in finished:
             run = futures.pop(future)   # released once read: a run's bytes leave the worker's memory
@@ -487,12 +478,15 @@ def run_sweep(runs, output_dir, client, shared_dir=False, force=False, numba_thr
             except distributed.client.FutureCancelledError as exc:   # its worker, or its mesh's, died
                 if resubmits[run.index] < LOST_RUN_RESUBMITS:
                     resubmits[run.index] += 1
-                    _send_lost_mesh_again(client, meshes, mesh_futures, mesh_keys[run.index])
-                    finished.add(submit(run))
+                    # carrying its mesh: no scatter while workers come and go, none to lose again
+                    finished.add(submit(run, meshes[mesh_keys[run.index]]))
                     continue
                 error, metrics = (f"lost {resubmits[run.index] + 1} times with a worker that died (Dask: "
                                   f"{(str(exc).splitlines() or [''])[0]})"), None
-            except Exception as exc:    # the run killed its workers (KilledWorker) or the result could not come back
+            except distributed.KilledWorker:   # the run's process died on every worker that tried it
+                error, metrics = ("the worker process running it died, on every try (out of memory, or a crash: "
+                                  "see the workers' logs)"), None
+            except Exception as exc:    # the result could not come back
                 error, metrics = (f"{type(exc).__name__}: {exc}".splitlines() or [""])[0], None
             if metrics is None:         # an older file of this run would contradict the summary
                 for stale in (run.path, xdmf_path_for(run.path)):
