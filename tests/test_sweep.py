@@ -479,9 +479,9 @@ def test_plot_summary(tmp_path):
 
 
 def test_runs_lost_with_their_workers_are_submitted_again(tmp_path, client):
-    """Every worker restarted once the first run is done (as if all died at once): the runs that
-    were on them, and the mesh the client had sent, are gone; the runs are submitted again, the
-    mesh sent again, and all finish."""
+    """Every worker process killed once the first run is done (their nannies start new ones): the
+    runs that were on them, and the mesh the client had scattered, are gone, and Dask cancels the
+    runs that needed it; they are submitted again, carrying the mesh, and all finish."""
     sweep = {"base": "bar.yaml", "parameters": {"material.youngs_modulus": [1e6, 2e6, 3e6, 4e6, 5e6, 6e6]}}
     out = tmp_path / "out"
     out.mkdir()
@@ -491,7 +491,8 @@ def test_runs_lost_with_their_workers_are_submitted_again(tmp_path, client):
     def restart_once(done, failed, running, total):
         if done >= 1 and not restarted:
             restarted.append(done)
-            client.restart()
+            with contextlib.suppress(Exception):     # the workers die before they answer
+                client.run(os._exit, 1)
 
     result = run_sweep(runs, out, client, progress=restart_once)
     assert restarted and result.counts["complete"] == 6, [row["status_reason"] for row in result.failed]
@@ -512,6 +513,8 @@ def test_a_shared_dir_this_machine_does_not_see_fails_the_runs(tmp_path, client,
         return execute_run(scene, mesh, name, str(elsewhere), *rest)
 
     monkeypatch.setattr(runner, "execute_run", writes_elsewhere)
+    monkeypatch.setattr(runner, "SHARED_FILE_WAIT_S", 0.5)
+    _unfinished_run_file(runs[0]).finish("failed", "an older run")   # must not pass for the new one
     result = run_sweep(runs, out, client, shared_dir=True)
     assert result.counts["failed"] == 2 and len(list(elsewhere.glob("*.h5"))) == 2
     assert all("this machine does not see it there: --shared-dir must be a folder" in row["status_reason"]
@@ -530,7 +533,8 @@ def test_a_cluster_without_workers_is_named_in_one_line():
 
 
 @pytest.mark.parametrize("address", ["tcp://127.0.0.1:87x99", "tcp://127.0.0.1:1"])
-def test_a_scheduler_that_is_not_there_is_one_line(tmp_path, address):
+def test_a_scheduler_that_is_not_there_is_one_line(tmp_path, monkeypatch, address):
+    monkeypatch.setattr(runner, "CONNECT_TIMEOUT_S", 1.0)
     path = write_sweep(tmp_path, {"base": "bar.yaml", "parameters": {"material.youngs_modulus": [1e6, 2e6]}})
     result = CliRunner().invoke(cli, ["sweep", str(path), "-o", str(tmp_path / "out"), "--scheduler", address])
     assert result.exit_code == 1
@@ -539,23 +543,30 @@ def test_a_scheduler_that_is_not_there_is_one_line(tmp_path, address):
     assert "sweep: 2 runs" not in result.output
 
 
+def _unfinished_run_file(run):
+    """Start writing ``run``'s file as a run does: returns its ``RunWriter``, the file open (its
+    ``finish`` closes it)."""
+    from softsim.io.hdf5 import RunWriter
+
+    prepared = prepare(run.scene)
+    model = prepared.model
+    return RunWriter(run.path, model.mesh.points, model.mesh.tets, model.fixed, "{}", prepared.plan.dt,
+                     prepared.plan.total_steps, ["velocities"], frames=2)
+
+
 def test_a_run_file_still_being_written_stops_the_sweep_before_any_run(tmp_path):
     """A file another run writes now (a run of an earlier sweep that a cluster's worker goes on
     with, after the sweep was interrupted) is named before anything runs, and left alone."""
-    from softsim.io.hdf5 import RunWriter
-
     sweep = {"base": "bar.yaml", "parameters": {"material.youngs_modulus": [1e6, 2e6]}}
     out = tmp_path / "out"
     runs = expand_sweep(load_sweep(write_sweep(tmp_path, sweep)), out)
     out.mkdir()
-    prepared = prepare(runs[1].scene)
-    model = prepared.model
-    with RunWriter(runs[1].path, model.mesh.points, model.mesh.tets, model.fixed, "{}", prepared.plan.dt,
-                   prepared.plan.total_steps, ["velocities"], frames=2):
-        with pytest.raises(SimulationError, match=r"run 2 \(youngs_modulus=2e\+06\): another run is writing "
-                                                  r".* now \(one of an earlier sweep still going on a worker\?\)"):
-            plan_runs(runs)
-    assert runs[1].path.is_file()
+    writer = _unfinished_run_file(runs[1])
+    with pytest.raises(SimulationError, match=r"run 2 \(youngs_modulus=2e\+06\): .* is open for writing by "
+                                              r"another process \(a run of an earlier sweep still going on"):
+        plan_runs(runs)
+    writer.finish("interrupted")
+    assert runs[1].path.is_file() and plan_runs(runs) == (runs, [])
 
 
 def test_ctrl_c_stops_the_runs_a_cluster_is_running(tmp_path, client):
@@ -618,3 +629,24 @@ def test_a_run_whose_worker_dies_is_named_so(tmp_path, client, monkeypatch):
     reason = result.rows[1]["status_reason"]
     assert (reason.startswith("the worker process running it died, on every try")
             or reason.startswith(f"lost {runner.LOST_RUN_RESUBMITS + 1} times with a worker that died")), reason
+
+
+def test_a_run_asks_whether_its_sweep_was_stopped_at_most_so_often(client):
+    """``stop_requested``: False until the sweep's event is set, then True; between two questions
+    to the scheduler it gives the last answer.  (Here in the client's process, whose client it uses.)"""
+    distributed = import_distributed()
+    name = f"softsim-test-stop-{os.urandom(4).hex()}"
+    every_time, throttled = runner.stop_requested(name, every_s=0.0), runner.stop_requested(name, every_s=3600.0)
+    assert not every_time() and not throttled()
+    distributed.Event(name, client=client).set()
+    assert every_time() and not throttled()
+
+
+def test_off_a_worker_a_run_is_never_asked_to_stop(monkeypatch):
+    distributed = import_distributed()
+
+    def no_client():
+        raise ValueError("No clients found")
+
+    monkeypatch.setattr(distributed, "get_client", no_client)
+    assert runner.stop_requested("any")() is False

@@ -46,9 +46,9 @@ class _Helper:
         work = pickle.dumps(items)
         self.functions = [(module, qualname) for module, qualname, _ in items]
         self.reported = 0
-        self.process = subprocess.Popen([sys.executable, "-c", _HELPER_CODE.format(path=sys.path)],
-                                        stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
-                                        start_new_session=True)
+        program = _HELPER_CODE.format(path=[str(p) for p in sys.path])
+        self.process = subprocess.Popen([sys.executable, "-c", program], stdin=subprocess.PIPE,
+                                        stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, start_new_session=True)
         try:
             self.process.stdin.write(work)
             self.process.stdin.close()

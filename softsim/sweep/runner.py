@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import Callable, Optional
 
 from ..errors import MissingDependencyError, SimulationError, SoftsimError
-from ..io.hdf5 import xdmf_path_for
+from ..io.hdf5 import being_written, xdmf_path_for
 from .metrics import METRIC_COLUMNS, run_metrics
 from .spec import Run
 
@@ -39,14 +39,25 @@ SUMMARY_NAME = "summary"
 NOT_FINISHED = "interrupted"
 # Seconds a mesh's scatter to the workers may take before the runs carry the mesh themselves.
 SCATTER_TIMEOUT_S = 120.0
-# Times a run is submitted again, carrying its mesh, when Dask cancels it because a worker died
-# with it or with its scattered mesh: once per lost worker, at most this often.
+# Times a run is submitted again, carrying its mesh, when Dask cancels it for one of
+# ``LOST_REASONS``: at most this often.  (A run whose own worker dies Dask reschedules itself,
+# until the run has killed ``distributed.scheduler.allowed-failures`` + 1 workers: KilledWorker.)
 LOST_RUN_RESUBMITS = 3
-# Seconds to wait, on connecting to a cluster that has no workers, for one to join.
+# Dask's reasons for cancelling a task that mean the workers lost what it needs (its scattered
+# mesh died with a worker) or all of it (a restart of the cluster); not the reasons that mean the
+# client lost the scheduler or another client cancelled it.
+LOST_REASONS = ("already forgotten", "lost dependencies", "scheduler-restart")
+# Seconds to wait for a scheduler to answer, and on connecting to a cluster that has no workers,
+# for one to join.
+CONNECT_TIMEOUT_S = 10.0
 WORKER_WAIT_S = 30.0
 # A run on a worker asks the scheduler whether its sweep was stopped (Ctrl-C) at its frames, at
-# most once in this many seconds.
+# most once in this many seconds; an answer not back within STOP_ASK_TIMEOUT_S is not waited for.
 STOP_POLL_S = 1.0
+STOP_ASK_TIMEOUT_S = 5.0
+# Seconds a shared folder may take to show this machine a file a worker wrote (NFS keeps a
+# "no such file" answer up to a minute); after one that never showed, the sweep waits no more.
+SHARED_FILE_WAIT_S = 60.0
 
 
 def import_distributed():
@@ -129,18 +140,28 @@ def execute_run(scene, mesh, name, target_dir=None, numba_threads=None, stop_eve
 def stop_requested(event_name, every_s=None):
     """A ``should_stop()`` for ``simulation.simulate`` on a worker: whether the sweep's
     ``distributed.Event`` ``event_name`` is set, asked of the scheduler at most every ``every_s``
-    seconds (``STOP_POLL_S``) and the last answer given in between."""
+    seconds (``STOP_POLL_S``), the last answer given in between and where the scheduler does not
+    answer within ``STOP_ASK_TIMEOUT_S``.  Never True where no Dask client is to be had (not on a
+    worker)."""
     import time
 
     distributed = import_distributed()
-    event = distributed.Event(event_name)
+    try:
+        client = distributed.get_client()
+    except ValueError:              # no worker, no client: nothing can ask this run to stop
+        return lambda: False
     every_s = STOP_POLL_S if every_s is None else every_s
     asked = {"at": -math.inf, "set": False}
 
     def should_stop():
         now = time.monotonic()
         if now - asked["at"] >= every_s:
-            asked["at"], asked["set"] = now, event.is_set()
+            asked["at"] = now
+            try:
+                asked["set"] = bool(client.sync(client.scheduler.event_is_set, name=event_name,
+                                                callback_timeout=STOP_ASK_TIMEOUT_S))
+            except Exception:       # the scheduler did not answer: go on, ask again later
+                pass
         return asked["set"]
 
     return should_stop
@@ -182,13 +203,13 @@ def plan_runs(runs, force=False):
     record it is rerun).
 
     A file that is not complete (failed, interrupted, left running by a killed sweep) is
-    replaced, unless a run still writes it (a run of an earlier sweep that a cluster's worker
-    goes on with): ``SimulationError``, before anything runs.  A complete file written for a different scene is not replaced without ``force``:
-    ``SimulationError`` naming the run and the first differing key, before anything runs.
+    replaced.  A complete file written for a different scene is not replaced without ``force``:
+    ``SimulationError`` naming the run and the first differing key, before anything runs; nor is
+    a file a run still writes (one of an earlier sweep that a cluster's worker goes on with).
     """
     import yaml
 
-    from ..io.hdf5 import being_written, run_attributes
+    from ..io.hdf5 import run_attributes
     from ..simulation import run_file_difference
 
     to_run, to_skip = [], []
@@ -201,8 +222,8 @@ def plan_runs(runs, force=False):
         if path.is_dir():
             raise SimulationError(f"run {run.index + 1} ({run.name}): {path} is a directory")
         if being_written(path):
-            raise SimulationError(f"run {run.index + 1} ({run.name}): another run is writing {path} now (one of "
-                                  f"an earlier sweep still going on a worker?); wait for it to end")
+            raise SimulationError(f"run {run.index + 1} ({run.name}): {path} is open for writing by another "
+                                  f"process (a run of an earlier sweep still going on a worker?); wait for it to end")
         stored = run_attributes(path)
         status = stored.get("status", "")
         if "config" not in stored:
@@ -328,6 +349,22 @@ def scatter_meshes(client, meshes, timeout=None):
     return scattered
 
 
+def _appears(path, wait_s):
+    """Whether ``path`` is a file, or becomes one within ``wait_s`` seconds; each look lists its
+    folder first, which makes a network file system look again."""
+    import time
+
+    deadline = time.monotonic() + wait_s
+    while True:
+        with contextlib.suppress(OSError):
+            os.listdir(path.parent)
+        if path.is_file():
+            return True
+        if time.monotonic() >= deadline:
+            return False
+        time.sleep(0.5)
+
+
 @contextlib.contextmanager
 def _sigint_ignored_in_children():
     """While inside, SIGINT is ignored, so worker processes started now ignore Ctrl-C.
@@ -397,8 +434,8 @@ def remote_client(address, worker_wait_s=None):
 def _connected(distributed, address, worker_wait_s):
     """``remote_client``'s client, connected and with a worker."""
     try:
-        client = distributed.Client(address, timeout="10s")
-    except (OSError, TimeoutError, ValueError, TypeError) as exc:
+        client = distributed.Client(address, timeout=f"{CONNECT_TIMEOUT_S}s")
+    except (OSError, TimeoutError, ValueError) as exc:
         reason = (str(exc).splitlines() or [type(exc).__name__])[0]
         raise SimulationError(f"--scheduler {address}: cannot connect ({reason}); is a Dask scheduler running "
                               f"there (dask scheduler), and is the address tcp://HOST:PORT?") from None
@@ -425,8 +462,9 @@ def run_sweep(runs, output_dir, client, shared_dir=False, force=False, numba_thr
 
     Runs whose file is complete with the same scene are skipped; every other run is (re)run, and
     one that fails (the blow-up guard, a ``SoftsimError``, a bug, a run that kills its workers)
-    does not stop the others.  A run Dask cancels because a worker died with it or with its mesh
-    is submitted again, carrying its mesh, up to ``LOST_RUN_RESUBMITS`` times.  With
+    does not stop the others.  A run Dask cancels because the workers lost its mesh (or all was
+    lost in a restart of the cluster) is submitted again, carrying its mesh, up to
+    ``LOST_RUN_RESUBMITS`` times; one whose own worker died Dask reruns itself.  With
     ``shared_dir``, a run whose file this machine does not see where the worker wrote it fails.
     On ``KeyboardInterrupt`` the runs not started are cancelled and those running are asked to
     stop at their next frame (``stop_requested``; Dask cannot stop a task), the summary of what
@@ -449,6 +487,7 @@ def run_sweep(runs, output_dir, client, shared_dir=False, force=False, numba_thr
         mesh_futures = scatter_meshes(client, meshes)
         target = str(output_dir) if shared_dir else None
         resubmits = dict.fromkeys((run.index for run in to_run), 0)
+        shared_file_wait_s = SHARED_FILE_WAIT_S
         stop_event = f"softsim-sweep-stop-{os.urandom(8).hex()}"
 
         def submit(run, mesh):
@@ -458,6 +497,9 @@ def run_sweep(runs, output_dir, client, shared_dir=False, force=False, numba_thr
             return future
 
         for run in to_run:
+            if shared_dir:              # the worker replaces it there: a file left here must not pass for its
+                for stale in (run.path, xdmf_path_for(run.path)):
+                    stale.unlink(missing_ok=True)
             submit(run, mesh_futures[mesh_keys[run.index]])
         finished = distributed.as_completed(list(futures)) if futures else ()
         for future in finished:
@@ -471,24 +513,27 @@ def run_sweep(runs, output_dir, client, shared_dir=False, force=False, numba_thr
                 if outcome["files"]:
                     _write_files(outcome["files"], output_dir)
                 metrics = outcome["metrics"]
-                if shared_dir and metrics is not None and not run.path.is_file():
+                if shared_dir and metrics is not None and not _appears(run.path, shared_file_wait_s):
+                    shared_file_wait_s = 0.0    # not shared: the next runs' files need no waiting for
                     error, metrics = (f"the worker on {outcome['host']} wrote {run.path}, but this machine does not "
                                       f"see it there: --shared-dir must be a folder this machine and every worker "
                                       f"see at the same path"), None
-            except distributed.client.FutureCancelledError as exc:   # its worker, or its mesh's, died
-                if resubmits[run.index] < LOST_RUN_RESUBMITS:
+            except distributed.client.FutureCancelledError as exc:
+                lost = exc.reason in LOST_REASONS and client.status == "running"
+                if lost and resubmits[run.index] < LOST_RUN_RESUBMITS:
                     resubmits[run.index] += 1
                     # carrying its mesh: no scatter while workers come and go, none to lose again
                     finished.add(submit(run, meshes[mesh_keys[run.index]]))
                     continue
-                error, metrics = (f"lost {resubmits[run.index] + 1} times with a worker that died (Dask: "
-                                  f"{(str(exc).splitlines() or [''])[0]})"), None
+                error = (f"lost {resubmits[run.index] + 1} times with a worker that died" if lost
+                         else f"cancelled by Dask ({exc.reason})")
+                metrics = None
             except distributed.KilledWorker:   # the run's process died on every worker that tried it
                 error, metrics = ("the worker process running it died, on every try (out of memory, or a crash: "
                                   "see the workers' logs)"), None
             except Exception as exc:    # the result could not come back
                 error, metrics = (f"{type(exc).__name__}: {exc}".splitlines() or [""])[0], None
-            if metrics is None:         # an older file of this run would contradict the summary
+            if metrics is None and not being_written(run.path):   # an older file would contradict the summary
                 for stale in (run.path, xdmf_path_for(run.path)):
                     if stale.is_file():
                         stale.unlink()
@@ -500,7 +545,8 @@ def run_sweep(runs, output_dir, client, shared_dir=False, force=False, numba_thr
     except KeyboardInterrupt:
         result.cancelled = True
         if futures:         # the runs already started stop at their next frame: Dask cannot stop a task
-            distributed.Event(stop_event, client=client).set()
+            with contextlib.suppress(Exception):      # a scheduler gone must not hide the interrupt
+                client.sync(client.scheduler.event_set, name=stop_event, callback_timeout=STOP_ASK_TIMEOUT_S)
         client.cancel(list(futures), force=True)
         raise
     finally:
