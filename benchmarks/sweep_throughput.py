@@ -27,7 +27,7 @@ from pathlib import Path
 import numba
 
 from softsim.sweep import expand_sweep, local_client, local_layout, parse_sweep, run_sweep
-from softsim.sweep.runner import machine_cores
+from softsim.kernels.compile_ahead import available_cores
 
 
 def make_runs(run_count, element_size, duration, folder):
@@ -69,7 +69,7 @@ def main():
     parser.add_argument("--duration", type=float, default=0.1, help="simulated seconds per run")
     parser.add_argument("--repeats", type=int, default=3)
     args = parser.parse_args()
-    cores = machine_cores()
+    cores = available_cores()
     default_threads = numba.get_num_threads()
     with tempfile.TemporaryDirectory(prefix="softsim-sweep-bench-") as tmp, contextlib.ExitStack() as stack:
         folder = Path(tmp)

@@ -73,6 +73,19 @@ def write_sweep(folder, sweep=SWEEP, base=BAR):
     return path
 
 
+def sweep_runs(tmp_path, sweep):
+    """The runs of ``sweep`` (over ``BAR``, written into ``tmp_path``) and their output folder, made."""
+    out = tmp_path / "out"
+    out.mkdir()
+    return expand_sweep(load_sweep(write_sweep(tmp_path, sweep)), out), out
+
+
+def interrupt_after_the_first_run(done, failed, running, total):
+    """A ``run_sweep`` progress callback: Ctrl-C once a run has finished."""
+    if done >= 1:
+        raise KeyboardInterrupt
+
+
 def read_csv(path):
     with open(path, newline="") as stream:
         return list(csv.DictReader(stream))
@@ -339,16 +352,10 @@ def test_a_complete_run_of_a_mesh_file_that_changed_is_not_taken_as_done(tmp_pat
 
 def test_ctrl_c_cancels_and_keeps_the_summary(tmp_path, client):
     sweep = {"base": "bar.yaml", "parameters": {"material.youngs_modulus": [1e6, 2e6, 3e6, 4e6, 5e6, 6e6]}}
-    out = tmp_path / "out"
-    out.mkdir()
-    runs = expand_sweep(load_sweep(write_sweep(tmp_path, sweep)), out)
-
-    def interrupt(done, failed, running, total):
-        if done >= 1:
-            raise KeyboardInterrupt
+    runs, out = sweep_runs(tmp_path, sweep)
 
     with pytest.raises(KeyboardInterrupt):
-        run_sweep(runs, out, client, progress=interrupt)
+        run_sweep(runs, out, client, progress=interrupt_after_the_first_run)
     statuses = [row["status"] for row in read_csv(out / "summary.csv")]
     assert statuses.count("complete") >= 1 and statuses.count("interrupted") >= 1
     assert set(statuses) <= {"complete", "interrupted"}
@@ -361,9 +368,7 @@ def test_a_scatter_that_hangs_is_given_up_and_the_runs_carry_the_mesh(tmp_path, 
         await asyncio.sleep(3600)
 
     sweep = {"base": "bar.yaml", "parameters": {"material.youngs_modulus": [1e6, 2e6]}}
-    out = tmp_path / "out"
-    out.mkdir()
-    runs = expand_sweep(load_sweep(write_sweep(tmp_path, sweep)), out)
+    runs, out = sweep_runs(tmp_path, sweep)
     monkeypatch.setattr(runner, "SCATTER_TIMEOUT_S", 0.5)
     monkeypatch.setattr(client, "scatter", lambda *args, **kwargs: never_finishes())
     with caplog.at_level("WARNING", logger="softsim"):
@@ -375,9 +380,7 @@ def test_a_scatter_that_hangs_is_given_up_and_the_runs_carry_the_mesh(tmp_path, 
 def test_a_run_refused_before_writing_is_reported_without_a_file(tmp_path, client):
     sweep = {"base": "bar.yaml", "parameters": {"time.dt_policy": ["refuse", "substep"]},
              "set": {"time.dt": 1.0e-3}}
-    out = tmp_path / "out"
-    out.mkdir()
-    runs = expand_sweep(load_sweep(write_sweep(tmp_path, sweep)), out)
+    runs, out = sweep_runs(tmp_path, sweep)
     result = run_sweep(runs, out, client)
     refused, split = result.rows
     assert list(refused) == list(split) == summary_columns(runs)      # known before the runs (--plot)
@@ -483,9 +486,7 @@ def test_runs_lost_with_their_workers_are_submitted_again(tmp_path, client):
     runs that were on them, and the mesh the client had scattered, are gone, and Dask cancels the
     runs that needed it; they are submitted again, carrying the mesh, and all finish."""
     sweep = {"base": "bar.yaml", "parameters": {"material.youngs_modulus": [1e6, 2e6, 3e6, 4e6, 5e6, 6e6]}}
-    out = tmp_path / "out"
-    out.mkdir()
-    runs = expand_sweep(load_sweep(write_sweep(tmp_path, sweep)), out)
+    runs, out = sweep_runs(tmp_path, sweep)
     restarted = []
 
     def restart_once(done, failed, running, total):
@@ -577,16 +578,10 @@ def test_ctrl_c_stops_the_runs_a_cluster_is_running(tmp_path, client):
 
     sweep = {"base": "bar.yaml", "parameters": {"time.duration": [0.005, 600.0, 601.0]},
              "set": {"output.frame_interval": 0.1}}
-    out = tmp_path / "out"
-    out.mkdir()
-    runs = expand_sweep(load_sweep(write_sweep(tmp_path, sweep)), out)
-
-    def interrupt(done, failed, running, total):
-        if done >= 1:
-            raise KeyboardInterrupt
+    runs, out = sweep_runs(tmp_path, sweep)
 
     with pytest.raises(KeyboardInterrupt):
-        run_sweep(runs, out, client, shared_dir=True, progress=interrupt)
+        run_sweep(runs, out, client, shared_dir=True, progress=interrupt_after_the_first_run)
     # a started run's file appears within a second or two (a run waiting on a worker is cancelled
     # before it starts); stopped, it is not written after its next frame
     started = [run.path for run in runs[1:]]
@@ -605,9 +600,7 @@ def test_a_run_whose_worker_dies_is_named_so(tmp_path, client, monkeypatch):
     (``allowed_failures`` 1 here, 3 by default); a death that also takes the scattered mesh makes
     it cancel the run instead, which the sweep submits again: either way ends in words."""
     sweep = {"base": "bar.yaml", "parameters": {"material.youngs_modulus": [1e6, 2e6]}}
-    out = tmp_path / "out"
-    out.mkdir()
-    runs = expand_sweep(load_sweep(write_sweep(tmp_path, sweep)), out)
+    runs, out = sweep_runs(tmp_path, sweep)
     execute_run, first_done = runner.execute_run, tmp_path / "first run done"
 
     def second_dies_after_the_first(scene, mesh, name, *rest):     # sent to the workers by value

@@ -23,12 +23,14 @@ import signal
 import socket
 import tempfile
 import threading
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Optional
 
 from ..errors import MissingDependencyError, SimulationError, SoftsimError
 from ..io.hdf5 import being_written, xdmf_path_for
+from ..kernels.compile_ahead import available_cores
 from .metrics import METRIC_COLUMNS, run_metrics
 from .spec import Run
 
@@ -71,14 +73,6 @@ def import_distributed():
     return distributed
 
 
-def machine_cores():
-    """Cores this process may run on."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:      # macOS, Windows
-        return os.cpu_count() or 1
-
-
 def local_layout(run_count, workers=None, cores=None):
     """``(workers, numba_threads)`` of a local cluster: workers x threads <= cores, never oversubscribed.
 
@@ -86,7 +80,7 @@ def local_layout(run_count, workers=None, cores=None):
     within a run for the small meshes sweeps are made of), but no more workers than runs; the
     cores left over go to each worker's Numba threads.
     """
-    cores = cores or machine_cores()
+    cores = cores or available_cores()
     if workers is None:
         workers = max(1, min(cores, run_count))
     return workers, max(1, cores // workers)
@@ -143,8 +137,6 @@ def stop_requested(event_name, every_s=None):
     seconds (``STOP_POLL_S``), the last answer given in between and where the scheduler does not
     answer within ``STOP_ASK_TIMEOUT_S``.  Never True where no Dask client is to be had (not on a
     worker)."""
-    import time
-
     distributed = import_distributed()
     try:
         client = distributed.get_client()
@@ -349,11 +341,15 @@ def scatter_meshes(client, meshes, timeout=None):
     return scattered
 
 
+def _remove_run_files(path):
+    """Remove a run's file ``path`` and the ``.xdmf`` beside it, where they are."""
+    for stale in (path, xdmf_path_for(path)):
+        stale.unlink(missing_ok=True)
+
+
 def _appears(path, wait_s):
     """Whether ``path`` is a file, or becomes one within ``wait_s`` seconds; each look lists its
     folder first, which makes a network file system look again."""
-    import time
-
     deadline = time.monotonic() + wait_s
     while True:
         with contextlib.suppress(OSError):
@@ -498,8 +494,7 @@ def run_sweep(runs, output_dir, client, shared_dir=False, force=False, numba_thr
 
         for run in to_run:
             if shared_dir:              # the worker replaces it there: a file left here must not pass for its
-                for stale in (run.path, xdmf_path_for(run.path)):
-                    stale.unlink(missing_ok=True)
+                _remove_run_files(run.path)
             submit(run, mesh_futures[mesh_keys[run.index]])
         finished = distributed.as_completed(list(futures)) if futures else ()
         for future in finished:
@@ -534,9 +529,7 @@ def run_sweep(runs, output_dir, client, shared_dir=False, force=False, numba_thr
             except Exception as exc:    # the result could not come back
                 error, metrics = (f"{type(exc).__name__}: {exc}".splitlines() or [""])[0], None
             if metrics is None and not being_written(run.path):   # an older file would contradict the summary
-                for stale in (run.path, xdmf_path_for(run.path)):
-                    if stale.is_file():
-                        stale.unlink()
+                _remove_run_files(run.path)
             row = rows[run.index] = summary_row(run, metrics, error)
             done += 1
             failed += row["status"] != "complete"
