@@ -387,12 +387,16 @@ def _simulate(prepared, output_path, progress, should_stop, resume, overwrite, c
     work = work_buffer(model)
     guard = FrameGuard(model, prepared.wave_speed, plan.dt, scene.time.dt_policy, state)
 
-    def write_frame(writer):
-        energy = frame_energy(model, state) if "energy" in fields else None
-        writer.append_frame(state.step * plan.dt, state.step, model.to_user_order(state.x),
-                            model.to_user_order(state.v), energy, guard.snapshot(),
+    def check_and_write_frame(writer, time):
+        """The guard's check of the frame at ``time`` [s], then the frame written; returns the
+        sub-steps per step for the next frame.  The energies are computed once for both."""
+        energy = frame_energy(model, state)
+        substeps = guard.check(state, time, energy)
+        writer.append_frame(time, state.step, model.to_user_order(state.x), model.to_user_order(state.v),
+                            energy if "energy" in fields else None, guard.snapshot(),
                             frame_fields(model, state, fields))
         writer.compile_time_s = compiled()
+        return substeps
 
     if resume:
         writer, stored = RunWriter.reopen(output_path, fields, frames=len(plan.frame_steps), started=started,
@@ -411,8 +415,7 @@ def _simulate(prepared, output_path, progress, should_stop, resume, overwrite, c
                            attributes=run_sources(model.mesh))
     with writer:
         if not resume:
-            substeps = guard.check(state, 0.0)
-            write_frame(writer)
+            substeps = check_and_write_frame(writer, 0.0)
         steps_taken = 0
         status = "complete"
         for target in plan.frame_steps:
@@ -426,8 +429,7 @@ def _simulate(prepared, output_path, progress, should_stop, resume, overwrite, c
             steps_taken += advance_substeps(model, state, plan.dt, target - state.step, substeps, scene.damping,
                                             work)
             guard.record_held_work(state, steps * plan.dt)
-            substeps = guard.check(state, state.step * plan.dt)
-            write_frame(writer)
+            substeps = check_and_write_frame(writer, state.step * plan.dt)
             if progress is not None:
                 progress(state.step, plan.total_steps)
             if should_stop is not None and should_stop() and state.step < plan.total_steps:

@@ -656,3 +656,30 @@ def test_two_simulate_runs_write_identical_frames(scene, tmp_path):
             frames.append((f["frames/time"][:], f["frames/points"][:]))
     np.testing.assert_array_equal(frames[0][0], frames[1][0])
     np.testing.assert_array_equal(frames[0][1], frames[1][1])
+
+
+def test_each_frame_computes_its_elastic_energy_once_for_the_guard_and_the_file(scene, tmp_path, monkeypatch):
+    """The guard's energy check and the file's ``energy`` field take the same energies, computed
+    once a frame (the elastic energy was computed twice: 0.1 ms a frame on the twisted bar); the
+    guard computes its own once, for the budget at the start.  The file holds the energies the
+    guard judged."""
+    import softsim.integrators.guard as guard_module
+    import softsim.simulation as simulation
+
+    calls = []
+
+    def counted(name, function):
+        def count(*args):
+            calls.append(name)
+            return function(*args)
+        return count
+
+    monkeypatch.setattr(simulation, "elastic_energy", counted("frame", simulation.elastic_energy))
+    monkeypatch.setattr(guard_module, "elastic_energy", counted("guard", guard_module.elastic_energy))
+    prepared = prepare(scene(time={"duration": 0.004}, output={"frame_interval": 0.001, "fields": ["energy"]}))
+    summary = simulate(prepared, tmp_path / "out.h5")
+    assert summary.frames == 5
+    assert calls.count("guard") == 1 and calls.count("frame") == summary.frames
+    with h5py.File(tmp_path / "out.h5", "r") as f:
+        elastic = f["frames/energy/elastic"][:]
+    assert np.all(np.isfinite(elastic)) and elastic[-1] > 0.0
