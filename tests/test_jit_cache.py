@@ -197,6 +197,43 @@ def test_the_step_compiles_its_own_model_alone(tmp_path):
     assert out[-10:] == ["1", "0", "0", "0", "True", "1", "1", "0", "0", "1"]
 
 
+ONE_INDEX_TYPE_SCRIPT = textwrap.dedent("""
+    import numpy as np
+    from softsim.kernels import deformation, fields, forces, mat3, stiffness, tet_shape
+    from softsim.kernels.jit import CompileTimeConstant
+    from softsim.kernels.rest_state import rest_state, vertex_tet_csr
+    from softsim.materials.models import MODEL_IDS
+    from softsim.mesh.generate import structured_box
+    points, tets = structured_box((1.0, 1.0, 1.0), (0.0, 0.0, 0.0), 0.5)[:2]
+    x = np.ascontiguousarray(points)
+    Dm_inv, V0 = rest_state(points, tets)
+    m, model = len(tets), CompileTimeConstant(MODEL_IDS["stvk"])
+    tet_shape.tet_shapes(x, tets)
+    stiffness.element_stiffness_maxima(x, tets, 1.0, 1.0)
+    none = np.empty((0, 3, 3)), np.empty(0)
+    fields.tet_fields_kernel(x, tets, Dm_inv, model, 1.0, 1.0, np.empty((m, 3, 3)), *none, *none, np.empty(m))
+    corner = np.empty((m, 4, 3))
+    forces.compute_tet_corner_forces(x, tets, Dm_inv, V0, model, 1.0, 1.0, corner)
+    forces.gather_vertex_forces(corner, *vertex_tet_csr(tets, len(x)), np.empty_like(x))
+    index_argument = {tet_shape.tet_shape: 2, deformation.edge_matrix: 2, mat3.mat3_load: 1,
+                      forces.tet_corner_forces: 4, forces.gather_vertex_force: 3}
+    for callee, k in index_argument.items():
+        print(callee.__name__, *sorted({str(sig[k]) for sig in callee.signatures}), sep=",")
+""")
+
+
+def test_a_parallel_kernel_compiles_its_callees_for_one_index_type(tmp_path):
+    """Numba types a ``prange`` body twice, the index an int64 and then, in the parallel loop, a
+    uint64, so a jitted function called with the index compiled twice (tet_shapes with a cold
+    cache 1.71-1.95 s, 1.25-1.29 s with one); the kernels pass it on as an int64
+    (``kernels.jit.njit_parallel``).  A fresh process and an empty cache, so that what is compiled
+    shows in the callees' signatures: their index argument has one type, int64."""
+    out = subprocess.run([sys.executable, "-c", ONE_INDEX_TYPE_SCRIPT], capture_output=True, text=True, check=True,
+                         env={**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}).stdout.split()
+    assert out[-5:] == ["tet_shape,int64", "edge_matrix,int64", "mat3_load,int64", "tet_corner_forces,int64",
+                        "gather_vertex_force,int64"]
+
+
 TWIN_SCRIPT = textwrap.dedent("""
     import sys
     from softsim.kernels import mat3

@@ -532,7 +532,10 @@ def advance_colour(x, rest, v, step_start, step_count, dt, blocks, colour_offset
         chunks = min(threads, node_count)
         for chunk in prange(chunks):
             control = flush_subnormals()
-            for i in range(chunk * node_count // chunks, (chunk + 1) * node_count // chunks):
+            # uint64 vertex numbers, as part_step's (``BlockLayout.owned_runs``): one specialisation
+            # of update_from_forces (``kernels.jit.njit_parallel``)
+            first = np.uint64(np.int64(chunk) * node_count // chunks)
+            for i in range(first, np.uint64((np.int64(chunk) + 1) * node_count // chunks)):
                 update_from_forces(x, rest, v, vertex_forces, i, dt, (step_start + step_count) * dt, inv_mass,
                                    gravity, external_accel, held, held_start, held_velocity, ground,
                                    damping_factor)

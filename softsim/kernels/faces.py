@@ -6,22 +6,21 @@ call, most of it in faulting in the fresh pages of its temporaries.
 """
 
 import numpy as np
-from numba import prange
-
-from .jit import njit_parallel
+from .jit import njit
 
 
-@njit_parallel
+@njit
 def sorted_face_triples(tets, face_corners):
     """``(low, middle, high, parity)`` (4 m,) each: the vertices of every face sorted, and the parity
     (0 or 1, int8) of the permutation that sorts the face as wound: even = the same cyclic winding.
-    face_corners (4, 3): the corners of each face of a tet, wound (``mesh.checks.OUTWARD_FACES``)."""
+    face_corners (4, 3): the corners of each face of a tet, wound (``mesh.checks.OUTWARD_FACES``).
+    Once per mesh, on one thread (``kernels.jit.njit_parallel``)."""
     m = tets.shape[0]
     low = np.empty(4 * m, dtype=np.int64)
     middle = np.empty(4 * m, dtype=np.int64)
     high = np.empty(4 * m, dtype=np.int64)
     parity = np.empty(4 * m, dtype=np.int8)
-    for e in prange(m):
+    for e in range(m):
         for k in range(4):
             a = tets[e, face_corners[k, 0]]
             b = tets[e, face_corners[k, 1]]

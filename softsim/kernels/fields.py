@@ -46,7 +46,8 @@ def tet_fields_kernel(x, tets, Dm_inv, model, lam, mu, strain, stress, pressure,
     want_von_mises = von_mises.shape[0] > 0
     want_J = J.shape[0] > 0
     need_sigma = want_stress or want_pressure or want_deviatoric or want_von_mises
-    for e in prange(tets.shape[0]):
+    for tet in prange(tets.shape[0]):
+        e = np.int64(tet)             # one specialisation of the callees (``kernels.jit.njit_parallel``)
         F = deformation_gradient(edge_matrix(x, tets, e), mat3_load(Dm_inv, e))
         det = mat3_det(F)
         if want_J:

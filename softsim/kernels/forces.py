@@ -42,7 +42,7 @@ def tet_corner_forces(x, tets, Dm_inv, rest_volume, e, model, lam, mu, out):
 def compute_tet_corner_forces(x, tets, Dm_inv, rest_volume, model, lam, mu, out):
     """Corner forces [N] of every tet into ``out`` (tet_count, 4, 3), in parallel over tets."""
     for e in prange(tets.shape[0]):
-        tet_corner_forces(x, tets, Dm_inv, rest_volume, e, model, lam, mu, out)
+        tet_corner_forces(x, tets, Dm_inv, rest_volume, np.int64(e), model, lam, mu, out)   # (njit_parallel)
 
 
 @njit
@@ -64,7 +64,7 @@ def gather_vertex_force(corner_forces, offsets, slots, i):
 def gather_vertex_forces(corner_forces, offsets, slots, out):
     """Vertex forces [N] into ``out`` (node_count, 3) from ``corner_forces`` (tet_count, 4, 3)."""
     for i in prange(out.shape[0]):
-        fx, fy, fz = gather_vertex_force(corner_forces, offsets, slots, i)
+        fx, fy, fz = gather_vertex_force(corner_forces, offsets, slots, np.int64(i))     # (njit_parallel)
         out[i, 0] = fx
         out[i, 1] = fy
         out[i, 2] = fz

@@ -18,9 +18,8 @@ shape is inverted.  Its accuracy does not rest on ``Q``'s orthogonality: the for
 import math
 
 import numpy as np
-from numba import prange
 
-from .jit import njit_inline, njit_parallel
+from .jit import njit, njit_inline
 from .mat3 import mat3_cofactor_inline
 
 TRIANGULAR_ENTRIES = 6     # (R^-1)_00, _01, _02, _11, _12, _22
@@ -56,13 +55,13 @@ def triangular_rest_inverse(D):
             inv_r11, -r12 * inv_r11 * a22, a22, det)
 
 
-@njit_parallel
+@njit
 def triangular_rest_inverses(Dm_inv):
     """``triangular_rest_inverse`` of every tet from its ``Dm^-1`` (m, 3, 3) [1/m]: (m, 6) [1/m],
-    columns ``TRIANGULAR_ENTRIES``."""
+    columns ``TRIANGULAR_ENTRIES``.  Once per mesh, on one thread (``kernels.jit.njit_parallel``)."""
     m = Dm_inv.shape[0]
     out = np.empty((m, TRIANGULAR_ENTRIES))
-    for e in prange(m):
+    for e in range(m):
         B = (Dm_inv[e, 0, 0], Dm_inv[e, 0, 1], Dm_inv[e, 0, 2], Dm_inv[e, 1, 0], Dm_inv[e, 1, 1],
              Dm_inv[e, 1, 2], Dm_inv[e, 2, 0], Dm_inv[e, 2, 1], Dm_inv[e, 2, 2])
         cof = mat3_cofactor_inline(B)

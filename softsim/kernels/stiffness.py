@@ -91,5 +91,5 @@ def element_stiffness_maxima(x, tets, lam, mu):
     m = tets.shape[0]
     out = np.empty(m)
     for e in prange(m):
-        out[e] = tet_stiffness_maximum(edge_matrix(x, tets, e), lam, mu)
+        out[e] = tet_stiffness_maximum(edge_matrix(x, tets, np.int64(e)), lam, mu)   # (njit_parallel)
     return out

@@ -60,26 +60,28 @@ def tet_shapes(x, tets):
     cos_min = np.empty(m)
     cos_max = np.empty(m)
     for e in prange(m):
-        altitude[e], cos_min[e], cos_max[e] = tet_shape(x, tets, e)
+        altitude[e], cos_min[e], cos_max[e] = tet_shape(x, tets, np.int64(e))     # one specialisation (njit_parallel)
     return altitude, cos_min, cos_max
 
 
-@njit_parallel
+@njit
 def signed_volumes(x, tets):
-    """``det [x1 - x0, x2 - x0, x3 - x0] / 6`` of every tet (tet_count,) [m^3]; positive = right-handed."""
+    """``det [x1 - x0, x2 - x0, x3 - x0] / 6`` of every tet (tet_count,) [m^3]; positive = right-handed.
+    Checks of a mesh, on one thread (``kernels.jit.njit_parallel``)."""
     m = tets.shape[0]
     out = np.empty(m)
-    for e in prange(m):
+    for e in range(m):
         out[e] = mat3_det(edge_matrix(x, tets, e)) / 6.0
     return out
 
 
-@njit_parallel
+@njit
 def mean_edge_lengths(x, tets):
-    """Mean of the six edge lengths of every tet (tet_count,) [m]."""
+    """Mean of the six edge lengths of every tet (tet_count,) [m].  Checks of a mesh, on one thread
+    (``kernels.jit.njit_parallel``)."""
     m = tets.shape[0]
     out = np.empty(m)
-    for e in prange(m):
+    for e in range(m):
         total = 0.0
         for a in range(3):
             for b in range(a + 1, 4):
