@@ -643,3 +643,25 @@ def test_off_a_worker_a_run_is_never_asked_to_stop(monkeypatch):
 
     monkeypatch.setattr(distributed, "get_client", no_client)
     assert runner.stop_requested("any")() is False
+
+
+def test_runs_no_worker_is_left_to_take_fail_and_the_sweep_ends(tmp_path, monkeypatch):
+    """A local cluster whose workers are gone for good (its one worker closed with its nanny once
+    the first run is done): the runs left fail, in words, after ``NO_WORKERS_TIMEOUT_S``, and the
+    sweep ends instead of waiting for a worker for ever."""
+    monkeypatch.setattr(runner, "NO_WORKERS_TIMEOUT_S", 2.0)
+    sweep = {"base": "bar.yaml", "parameters": {"material.youngs_modulus": [1e6, 2e6, 3e6, 4e6]}}
+    runs, out = sweep_runs(tmp_path, sweep)
+    with local_client(workers=1, numba_threads=1) as client:
+        closed = []
+
+        def close_the_worker(done, failed, running, total):
+            if done >= 1 and not closed:
+                closed.append(done)
+                client.cluster.scale(0)
+
+        result = run_sweep(runs, out, client, progress=close_the_worker)
+    assert closed and result.counts["complete"] >= 1
+    reasons = {row["status_reason"] for row in result.failed}
+    assert result.counts["complete"] + len(result.failed) == 4 and result.failed
+    assert reasons == {"no Dask worker was left to run it for 2 s (they died and none came back)"}

@@ -53,6 +53,9 @@ LOST_REASONS = ("already forgotten", "lost dependencies", "scheduler-restart")
 # for one to join.
 CONNECT_TIMEOUT_S = 10.0
 WORKER_WAIT_S = 30.0
+# A local cluster's runs fail when no worker is left to take them for this long [s], instead of
+# waiting for ever (``local_cluster_config``).
+NO_WORKERS_TIMEOUT_S = 60.0
 # A run on a worker asks the scheduler whether its sweep was stopped (Ctrl-C) at its frames, at
 # most once in this many seconds; an answer not back within STOP_ASK_TIMEOUT_S is not waited for.
 STOP_POLL_S = 1.0
@@ -379,6 +382,19 @@ def _sigint_ignored_in_children():
         signal.signal(signal.SIGINT, previous)
 
 
+def local_cluster_config():
+    """The Dask settings of a local cluster.  Its nannies restart a worker that dies.  Dask's
+    cluster object also closes a nanny whose worker has not come back ``lost-worker-timeout`` after
+    a worker of its name died (meant for clusters of batch jobs), checking only then, not whether
+    the worker died and came back meanwhile: with every worker killed twice, 15 s apart (the
+    default timeout), it closed both nannies while their workers restarted, and the sweep waited
+    for a worker, for ever (a test, on a loaded host, once in 5-8 runs of its module).  Here the
+    nannies alone restart workers, and a run that no worker is left to take for
+    ``NO_WORKERS_TIMEOUT_S`` fails (Dask's ``no-workers-timeout``)."""
+    return {"distributed.deploy.lost-worker-timeout": "365 days",
+            "distributed.scheduler.no-workers-timeout": f"{NO_WORKERS_TIMEOUT_S}s"}
+
+
 @contextlib.contextmanager
 def local_client(workers, numba_threads):
     """A ``distributed.Client`` on a new local cluster of ``workers`` single-threaded process workers.
@@ -389,7 +405,16 @@ def local_client(workers, numba_threads):
     parallel code at once.
     """
     distributed = import_distributed()
+    import dask
 
+    with dask.config.set(local_cluster_config()), _local_cluster(distributed, workers, numba_threads) as cluster:
+        with distributed.Client(cluster) as client:
+            yield client
+
+
+@contextlib.contextmanager
+def _local_cluster(distributed, workers, numba_threads):
+    """``local_client``'s cluster."""
     with _sigint_ignored_in_children():
         cluster = distributed.LocalCluster(
             n_workers=workers, threads_per_worker=1, processes=True, silence_logs=logging.CRITICAL,
@@ -397,8 +422,7 @@ def local_client(workers, numba_threads):
             # No dashboard; the scheduler's small HTTP server on a free port, not 8787.
             dashboard_address=":0", scheduler_kwargs={"dashboard": False})
     try:
-        with distributed.Client(cluster) as client:
-            yield client
+        yield cluster
     finally:
         cluster.close()
 
@@ -523,6 +547,9 @@ def run_sweep(runs, output_dir, client, shared_dir=False, force=False, numba_thr
                 error = (f"lost {resubmits[run.index] + 1} times with a worker that died" if lost
                          else f"cancelled by Dask ({exc.reason})")
                 metrics = None
+            except distributed.scheduler.NoWorkerError as exc:      # ``local_cluster_config``
+                error, metrics = (f"no Dask worker was left to run it for {exc.timeout:g} s (they died and none "
+                                  f"came back)"), None
             except distributed.KilledWorker:   # the run's process died on every worker that tried it
                 error, metrics = ("the worker process running it died, on every try (out of memory, or a crash: "
                                   "see the workers' logs)"), None
