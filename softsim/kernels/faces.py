@@ -6,6 +6,7 @@ call, most of it in faulting in the fresh pages of its temporaries.
 """
 
 import numpy as np
+
 from .jit import njit
 
 
