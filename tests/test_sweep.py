@@ -650,8 +650,8 @@ def test_runs_no_worker_is_left_to_take_fail_and_the_sweep_ends(tmp_path, monkey
     the first run is done): the runs left fail, in words, after ``NO_WORKERS_TIMEOUT_S``, and the
     sweep ends instead of waiting for a worker for ever."""
     monkeypatch.setattr(runner, "NO_WORKERS_TIMEOUT_S", 2.0)
-    sweep = {"base": "bar.yaml", "parameters": {"material.youngs_modulus": [1e6, 2e6, 3e6, 4e6]}}
-    runs, out = sweep_runs(tmp_path, sweep)
+    moduli = [1e6 * (k + 1) for k in range(8)]         # more than the worker can finish as it closes
+    runs, out = sweep_runs(tmp_path, {"base": "bar.yaml", "parameters": {"material.youngs_modulus": moduli}})
     with local_client(workers=1, numba_threads=1) as client:
         closed = []
 
@@ -663,5 +663,5 @@ def test_runs_no_worker_is_left_to_take_fail_and_the_sweep_ends(tmp_path, monkey
         result = run_sweep(runs, out, client, progress=close_the_worker)
     assert closed and result.counts["complete"] >= 1
     reasons = {row["status_reason"] for row in result.failed}
-    assert result.counts["complete"] + len(result.failed) == 4 and result.failed
+    assert result.counts["complete"] + len(result.failed) == len(moduli) and result.failed
     assert reasons == {"no Dask worker was left to run it for 2 s (they died and none came back)"}
