@@ -156,12 +156,11 @@ class FrameGuard:
         self.held_work += 0.5 * (self.held_power + power) * frame_time
         self.held_power = power
 
-    def check(self, state, time, energy=None):
+    def check(self, state, time, energy):
         """Check a frame's ``state`` at ``time`` [s]; return the sub-steps per step for the next frame.
 
         energy: the state's kinetic, elastic and gravitational energy [J] (``{"kinetic": ...,
-        "elastic": ..., "gravity": ...}``), where the caller has computed them for its frame;
-        computed here otherwise.
+        "elastic": ..., "gravity": ...}``, ``simulation.frame_energy``), which the frame also writes.
         Raises ``SimulationError`` if the state is non-finite, blown up, inverted where the model
         cannot handle it, or (under ``refuse``) needs a smaller step than the one in use.
         """
@@ -175,9 +174,6 @@ class FrameGuard:
                 raise SimulationError(
                     f"element {self._user_tet(e)} inverted (J = {self.J[e]:.3g}) {where}; the "
                     f"{_MODEL_NAMES[m.material_id]} model cannot recover from inversion: use neohookean or corotated")
-        if energy is None:
-            energy = {"kinetic": kinetic_energy(state.v, m.mass), "elastic": self._elastic(state.x),
-                      "gravity": gravity_energy(state.x, m.mass, m.gravity)}
         mechanical = energy["kinetic"] + energy["elastic"]
         gravity_in = self.gravity0 - energy["gravity"]
         traction_in = float((m.traction_force * (state.x - self.x0)).sum())
