@@ -1,9 +1,12 @@
-"""Energies of a state [J], reduced in parallel; evaluated once per frame, never per step.
+"""Energies of a state [J]; evaluated once per frame, never per step.
 
-Each sum is cut into ``CHUNKS`` fixed ranges, summed in parallel, then added in order: the same
-bits on any thread count and under any scheduling.  (A ``prange`` reduction adds per-thread
-partial sums, and TBB hands the chunks of a loop to whichever thread is free: its totals changed
-in the last bits from call to call.)
+The elastic energy is cut into ``CHUNKS`` fixed ranges of tets, summed in parallel, then added in
+order: the same bits on any thread count and under any scheduling.  (A ``prange`` reduction adds
+per-thread partial sums, and TBB hands the chunks of a loop to whichever thread is free: its totals
+changed in the last bits from call to call.)  The kinetic and gravitational energies, a few
+multiply-adds a vertex, are summed on one thread, in the same ``CHUNKS`` ranges (the same bits as
+in parallel): compiled in parallel, the two took about 1.3 s more of a first run's compiling; at
+370k vertices (2M tets) the two take 1.4 ms a frame serially, 0.7 ms in parallel.
 """
 
 import numpy as np
@@ -31,12 +34,12 @@ def elastic_energy(x, tets, Dm_inv, rest_volume, model, lam, mu):
     return ordered_sum(partial)
 
 
-@njit_parallel
+@njit
 def kinetic_energy(v, mass):
     """``1/2 sum m |v|^2`` [J]; v (node_count, 3) [m/s], mass (node_count,) [kg]."""
     n = v.shape[0]
     partial = np.zeros(CHUNKS)
-    for c in prange(CHUNKS):
+    for c in range(CHUNKS):
         total = 0.0
         for i in range(c * n // CHUNKS, (c + 1) * n // CHUNKS):
             total += 0.5 * mass[i] * (v[i, 0] ** 2 + v[i, 1] ** 2 + v[i, 2] ** 2)
@@ -44,12 +47,12 @@ def kinetic_energy(v, mass):
     return ordered_sum(partial)
 
 
-@njit_parallel
+@njit
 def gravity_energy(x, mass, gravity):
     """Potential energy ``-sum m g . x`` [J] in the uniform field ``gravity`` (3,) [m/s^2]."""
     n = x.shape[0]
     partial = np.zeros(CHUNKS)
-    for c in prange(CHUNKS):
+    for c in range(CHUNKS):
         total = 0.0
         for i in range(c * n // CHUNKS, (c + 1) * n // CHUNKS):
             total -= mass[i] * (gravity[0] * x[i, 0] + gravity[1] * x[i, 1] + gravity[2] * x[i, 2])
