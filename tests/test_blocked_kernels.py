@@ -535,8 +535,9 @@ def test_the_blocked_element_checks_match_naive_volume_ratios_and_stretches():
     m = body.tet_count
     J, stretch = np.full(m, np.nan), np.full(m, np.nan)
     ones = np.ones(m)
-    assert block_volume_ratios_and_stretches(x, body.blocks.tets, body.blocks.rest, m, body.blocks.whole_rows, J,
-                                             stretch, ones, ones, 0.05)     # the inverted ones moved
+    assert block_volume_ratios_and_stretches(x, body.blocks.tets, body.blocks.rest,
+                                             CompileTimeConstant(body.blocks.triangular), m, body.blocks.whole_rows,
+                                             J, stretch, ones, ones, 0.05)     # the inverted ones moved
     Ds = np.stack([x[tets[:, k]] - x[tets[:, 0]] for k in (1, 2, 3)], axis=2)
     F = Ds @ body.Dm_inv
     np.testing.assert_allclose(J, np.linalg.det(F), rtol=1e-12, atol=1e-12)

@@ -14,6 +14,7 @@ import pytest
 
 from softsim.errors import ConfigError, SimulationError
 from softsim.kernels.blocked import build_block_layout
+from softsim.kernels.jit import CompileTimeConstant
 from softsim.integrators.stability import exact_stable_step
 from softsim.simulation import prepare, simulate
 
@@ -273,11 +274,13 @@ def test_element_checks_tell_whether_any_tet_moved_as_the_largest_change_does_an
     assert computing.rest.shape[0] == 0
 
     def both_say(x, J_seen, stretch_seen):
-        computed = block_volume_ratios_and_stretches(x, computing.tets, computing.rest, m, computing.whole_rows,
+        computed = block_volume_ratios_and_stretches(x, computing.tets, computing.rest,
+                                                     CompileTimeConstant(computing.triangular), m, computing.whole_rows,
                                                      J, stretch, J_seen, stretch_seen, limit, model.rest_points)
         J_computed, stretch_computed = J.copy(), stretch.copy()
-        blocked = block_volume_ratios_and_stretches(x, model.blocks.tets, model.blocks.rest, m, model.blocks.whole_rows,
-                                                    J, stretch, J_seen, stretch_seen, limit)
+        blocked = block_volume_ratios_and_stretches(x, model.blocks.tets, model.blocks.rest,
+                                                    CompileTimeConstant(model.blocks.triangular), m,
+                                                    model.blocks.whole_rows, J, stretch, J_seen, stretch_seen, limit)
         J_blocked, stretch_blocked = J.copy(), stretch.copy()
         np.testing.assert_allclose(J_computed, J_blocked, rtol=1e-12, atol=1e-14)
         np.testing.assert_allclose(stretch_computed, stretch_blocked, rtol=1e-12)

@@ -30,6 +30,7 @@ from ..kernels import compile_ahead
 from ..kernels.element_checks import all_finite, block_volume_ratios_and_stretches, element_volume_ratios_and_stretches
 from ..kernels.energy import elastic_energy, gravity_energy, kinetic_energy
 from ..kernels.forces import elastic_forces
+from ..kernels.jit import CompileTimeConstant
 from ..materials.models import INVERSION_SAFE, MODEL_IDS
 from .stability import exact_stable_step
 
@@ -90,7 +91,8 @@ def element_measure_call(model, x, J, stretch, J_seen, stretch_seen, limit):
     (``block_volume_ratios_and_stretches``), else tet by tet."""
     if model.blocks.rest.dtype == np.float64:
         blocks = model.blocks
-        return block_volume_ratios_and_stretches, (x, blocks.tets, blocks.rest, model.tet_count, blocks.whole_rows,
+        return block_volume_ratios_and_stretches, (x, blocks.tets, blocks.rest, CompileTimeConstant(blocks.triangular),
+                                                   model.tet_count, blocks.whole_rows,
                                                    J, stretch, J_seen, stretch_seen, limit,
                                                    blocks.points_for_rest(model.rest_points))
     return element_volume_ratios_and_stretches, (x, model.tets, model.Dm_inv, J, stretch, J_seen, stretch_seen, limit)

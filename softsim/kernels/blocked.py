@@ -1058,25 +1058,52 @@ def computed_rest(buf, rows):
     return buf[ROW_REST * BLOCK:(ROW_REST + rows) * BLOCK].reshape((BLOCK // lanes, rows, lanes))
 
 
-@njit
-def volume_ratio_and_stretch_block(rest, buf):
+def volume_ratio_and_stretch_block(triangular, rest, buf):
     """``J = det F`` and the RMS stretch ``|F| / sqrt(3)`` of each lane, from the corner positions
     in ``buf``, into rows ``ROW_J`` and ``ROW_STRETCH`` of ``buf`` (the guard's element checks).
-    rest: a block's rest rows in either form (``F_r`` has F's det and norm, ``rotated_rest``)."""
+    rest: a block's rest rows, in the triangular form where ``triangular`` (a compile-time constant,
+    ``kernels.jit.CompileTimeConstant``: 1 or 0) says so, else in the full form (``F_r`` has F's
+    det and norm, ``rotated_rest``).  Compiled code only (``_volume_ratio_and_stretch_block``)."""
+    raise NotImplementedError("volume_ratio_and_stretch_block runs in compiled code only")
+
+
+@overload(volume_ratio_and_stretch_block, prefer_literal=True, inline="always")
+def _volume_ratio_and_stretch_block(triangular, rest, buf):
+    """Only the lane loop of the rest data's form, ``triangular`` a constant: a run's guard then
+    compiles one form, not both (the cantilever scene's first run: about 1 s less compiling)."""
+    if not isinstance(triangular, types.IntegerLiteral):
+        raise TypingError(f"the rest data's form must be a compile-time constant (kernels.jit.CompileTimeConstant), "
+                          f"not {triangular}")
+    loop = rotated_volume_ratio_and_stretch_block if triangular.literal_value else full_volume_ratio_and_stretch_block
+    loop.compile((rest, buf))
+
+    def one_form(triangular, rest, buf):
+        loop(rest, buf)
+    return one_form
+
+
+@njit
+def rotated_volume_ratio_and_stretch_block(rest, buf):
+    """``volume_ratio_and_stretch_block`` over rest rows in the triangular form."""
     prefer_wide_vectors()
     lanes = group_lanes(rest)
-    if rest.shape[1] == TRIANGULAR_REST_ROWS:
-        for g in range(BLOCK // lanes):
-            group = rest[g]
-            for l in range(lanes):
-                j = g * lanes + l
-                lane_store_volume_ratio_and_stretch(buf, j, lane_rotated_deformation_gradient(group, l, buf, j))
-    else:
-        for g in range(BLOCK // lanes):
-            group = rest[g]
-            for l in range(lanes):
-                j = g * lanes + l
-                lane_store_volume_ratio_and_stretch(buf, j, lane_deformation_gradient(group, l, buf, j))
+    for g in range(BLOCK // lanes):
+        group = rest[g]
+        for l in range(lanes):
+            j = g * lanes + l
+            lane_store_volume_ratio_and_stretch(buf, j, lane_rotated_deformation_gradient(group, l, buf, j))
+
+
+@njit
+def full_volume_ratio_and_stretch_block(rest, buf):
+    """``volume_ratio_and_stretch_block`` over rest rows in the full form (``Dm^-1``, ``V0``)."""
+    prefer_wide_vectors()
+    lanes = group_lanes(rest)
+    for g in range(BLOCK // lanes):
+        group = rest[g]
+        for l in range(lanes):
+            j = g * lanes + l
+            lane_store_volume_ratio_and_stretch(buf, j, lane_deformation_gradient(group, l, buf, j))
 
 
 @njit_inline
