@@ -48,9 +48,10 @@ def block_volume_ratios_and_stretches(x, block_tets, block_rest, triangular, tet
                                       J_seen, stretch_seen, limit, rest_points=None):
     """``element_volume_ratios_and_stretches`` over the blocks of a ``kernels.blocked.BlockLayout``
     with float64 rest data (``block_tets``, ``block_rest``, ``tet_count``, ``whole_rows``; its tets
-    in the model's order; ``triangular``: its ``triangular`` as a ``kernels.jit.CompileTimeConstant``,
-    so that only that form's lane loop is compiled): the corners gathered into a scratch buffer, F, J and the stretch in packed
-    SIMD lanes, and whether any tet moved in the same pass.  At 100k tets, 2 threads: 0.35-0.41 ms
+    in the model's order; ``triangular``: the layout's ``triangular`` as a
+    ``kernels.jit.CompileTimeConstant``, so that only that form's lane loop is compiled): the
+    corners gathered into a scratch buffer, F, J and the stretch in packed SIMD lanes, and whether
+    any tet moved in the same pass.  At 100k tets, 2 threads: 0.35-0.41 ms
     against 0.7-1.3 ms tet by tet (a guard check every 32 steps); inside a run, the test of whether
     any tet moved took 0.27 ms more as a pass of its own over the four arrays.
     rest_points: None, or the rest positions (n, 3) [m], from which each block's rest data are
