@@ -251,16 +251,16 @@ ONE_REST_FORM_SCRIPT = textwrap.dedent("""
         layout = blocked.build_block_layout(tets, Dm_inv, V0, len(x), model=MODEL_IDS[name])
         block_volume_ratios_and_stretches(x, layout.tets, layout.rest, CompileTimeConstant(layout.triangular), m,
                                           layout.whole_rows, np.empty(m), np.empty(m), np.ones(m), np.ones(m), 0.05)
-        print(len(blocked.rotated_volume_ratio_and_stretch_block.signatures),
-              len(blocked.full_volume_ratio_and_stretch_block.signatures))
+        print(len(blocked.lane_rotated_deformation_gradient.signatures),
+              len(blocked.lane_deformation_gradient.signatures))
 """)
 
 
 def test_the_guards_measure_compiles_the_lane_loop_of_its_rest_form_alone(tmp_path):
     """The guard's measure of the tets reads the rest data in the form the scene's law steps with
-    (``kernels.rotated_rest``): that form, a ``CompileTimeConstant``, picks its lane loop at compile
-    time, so a StVK scene compiles the triangular form's loop alone, and a linear one then adds the
-    full form's (both were compiled in every run, about 1 s of a first run).  A fresh process and an
+    (``kernels.rotated_rest``): that form, a ``CompileTimeConstant``, picks its lanes' deformation
+    gradient at compile time, so a StVK scene compiles the triangular form's alone, and a linear one
+    then adds the full form's (both were compiled in every run, about 0.5 s of a first run).  A fresh process and an
     empty cache, so that what is compiled shows in the loops' signatures."""
     out = subprocess.run([sys.executable, "-c", ONE_REST_FORM_SCRIPT, "stvk", "linear"], capture_output=True,
                          text=True, check=True, env={**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}).stdout.split()

@@ -1058,53 +1058,41 @@ def computed_rest(buf, rows):
     return buf[ROW_REST * BLOCK:(ROW_REST + rows) * BLOCK].reshape((BLOCK // lanes, rows, lanes))
 
 
+@njit
 def volume_ratio_and_stretch_block(triangular, rest, buf):
     """``J = det F`` and the RMS stretch ``|F| / sqrt(3)`` of each lane, from the corner positions
     in ``buf``, into rows ``ROW_J`` and ``ROW_STRETCH`` of ``buf`` (the guard's element checks).
     rest: a block's rest rows, in the triangular form where ``triangular`` (a compile-time constant,
     ``kernels.jit.CompileTimeConstant``: 1 or 0) says so, else in the full form (``F_r`` has F's
-    det and norm, ``rotated_rest``).  Compiled code only (``_volume_ratio_and_stretch_block``)."""
-    raise NotImplementedError("volume_ratio_and_stretch_block runs in compiled code only")
+    det and norm, ``rotated_rest``)."""
+    prefer_wide_vectors()
+    lanes = group_lanes(rest)
+    for g in range(BLOCK // lanes):
+        group = rest[g]
+        for l in range(lanes):
+            j = g * lanes + l
+            lane_store_volume_ratio_and_stretch(buf, j, lane_rest_deformation_gradient(triangular, group, l, buf, j))
 
 
-@overload(volume_ratio_and_stretch_block, prefer_literal=True, inline="always")
-def _volume_ratio_and_stretch_block(triangular, rest, buf):
-    """Only the lane loop of the rest data's form, ``triangular`` a constant: a run's guard then
-    compiles one form, not both (about 0.5 s less compiling in a first run).  An overload, as
-    Numba does not prune a branch on an ``IntegerLiteral`` argument (it does on ``None``)."""
+def lane_rest_deformation_gradient(triangular, group, l, buf, j):
+    """Lane ``l``'s deformation gradient from its corners in ``buf`` (lane ``j``) and its rest rows
+    ``group``, in the form ``triangular`` names; compiled code only (``_lane_rest_deformation_gradient``)."""
+    raise NotImplementedError("lane_rest_deformation_gradient runs in compiled code only")
+
+
+@overload(lane_rest_deformation_gradient, prefer_literal=True, inline="always")
+def _lane_rest_deformation_gradient(triangular, group, l, buf, j):
+    """Only the form's own gradient, ``triangular`` a constant: the guard's measure then compiles
+    one form, not both (about 0.5 s less compiling in a first run).  An overload, as Numba does not
+    prune a branch on an ``IntegerLiteral`` argument (it does on ``None``)."""
     if not isinstance(triangular, types.IntegerLiteral):
         raise TypingError(f"the rest data's form must be a compile-time constant (kernels.jit.CompileTimeConstant), "
                           f"not {triangular}")
-    loop = rotated_volume_ratio_and_stretch_block if triangular.literal_value else full_volume_ratio_and_stretch_block
-    loop.compile((rest, buf))
+    gradient = lane_rotated_deformation_gradient if triangular.literal_value else lane_deformation_gradient
 
-    def one_form(triangular, rest, buf):
-        loop(rest, buf)
+    def one_form(triangular, group, l, buf, j):
+        return gradient(group, l, buf, j)
     return one_form
-
-
-@njit
-def rotated_volume_ratio_and_stretch_block(rest, buf):
-    """``volume_ratio_and_stretch_block`` over rest rows in the triangular form."""
-    prefer_wide_vectors()
-    lanes = group_lanes(rest)
-    for g in range(BLOCK // lanes):
-        group = rest[g]
-        for l in range(lanes):
-            j = g * lanes + l
-            lane_store_volume_ratio_and_stretch(buf, j, lane_rotated_deformation_gradient(group, l, buf, j))
-
-
-@njit
-def full_volume_ratio_and_stretch_block(rest, buf):
-    """``volume_ratio_and_stretch_block`` over rest rows in the full form (``Dm^-1``, ``V0``)."""
-    prefer_wide_vectors()
-    lanes = group_lanes(rest)
-    for g in range(BLOCK // lanes):
-        group = rest[g]
-        for l in range(lanes):
-            j = g * lanes + l
-            lane_store_volume_ratio_and_stretch(buf, j, lane_deformation_gradient(group, l, buf, j))
 
 
 @njit_inline
