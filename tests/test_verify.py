@@ -416,6 +416,22 @@ def test_the_cheapest_run_for_a_budget_does_not_follow_timer_noise():
     assert "1204 steps" in lines[0], lines                # three times as slow is no noise
 
 
+def test_a_re_rendered_report_names_the_same_times_where_the_table_rounds_across_a_digit(tmp_path):
+    """The table keeps 6 digits of a wall time and a budget's answer 3: 0.12549999996 s reads
+    0.125 s, but 0.1255 s (as the table has it) reads 0.126 s.  The answers come from the
+    table's values, so the report and its re-render say the same."""
+    from softsim.verify.cases import VerifyRow
+    from softsim.verify.report import read_csv, write_report
+
+    row = VerifyRow(case="axial-vibration", quantity="period", model="stvk", precision="float64",
+                    ladder="element_size", refinement=0.1, element_size=0.1, tets=400, dt=1e-4, steps=604,
+                    wall_time_s=0.12549999996, value=1.0, reference_value=1.0, error=2.7e-4, reference="theory")
+    first = write_report(tmp_path / "a", [row], quick=True, plot=False)
+    again = write_report(tmp_path / "b", read_csv(first.csv_path), quick=True, plot=False)
+    assert "0.126 s" in first.budgets["axial-vibration"][0]
+    assert again.budgets == first.budgets
+
+
 def test_replot_refuses_the_options_of_a_run(tmp_path):
     from click.testing import CliRunner
 
