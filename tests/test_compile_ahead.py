@@ -18,7 +18,7 @@ from softsim.simulation import prepare, run_calls, simulate
 # ``kinetic_energy`` of float32 arrays and ``elastic_energy`` of one StVK tet stretched by 1.1
 # along x, its model id a compile-time constant (as the step's), which nothing else compiles in
 # that cache; waits for each before calling it, and prints what it saw.  FATE: "wait" for the
-# helper, or "kill" it first.
+# helper, "kill" it first, or "shared": hand them to ``compile_shared`` instead of ``submit``.
 PROBE = textwrap.dedent("""
     import numpy as np
     from numba.core import event
@@ -34,7 +34,8 @@ PROBE = textwrap.dedent("""
            1.0, 1.0)
     calls = [(kinetic_energy, (v, mass)), (elastic_energy, tet)]
     cached = [compile_ahead.is_compiled_or_cached(f, compile_ahead.argument_types(f, a)) for f, a in calls]
-    handed = compile_ahead.submit(calls)
+    handed = (compile_ahead.compile_shared if "{fate}" == "shared" else compile_ahead.submit)(calls)
+    in_this_process = [compile_ahead.argument_types(f, a) in f.overloads for f, a in calls]
     if "{fate}" == "kill" and handed:
         compile_ahead._helper.process.kill()
     compiled_here, energies = [], []
@@ -44,14 +45,16 @@ PROBE = textwrap.dedent("""
         with event.install_listener("numba:compile", event.TimingListener()) as listener:
             energies.append(f(*arguments))
         compiled_here.append(listener.done)
-    print(repr((cached, handed, compiled_here, energies, compile_ahead._helper is None)))
+    print(repr((cached, handed, compiled_here, energies, compile_ahead._helper is None, in_this_process)))
 """)
 
 
 def run_probe(tmp_path, fate="wait", switch="1"):
-    """``(cached, handed, compiled_here, energies, helper_gone)``: whether each kernel was in the
-    cache before the submit and after its wait (4 values), how many the helper took, whether this
-    process compiled each, each's value, and whether the helper is gone after the last wait."""
+    """``(cached, handed, compiled_here, energies, helper_gone, in_this_process)``: whether each
+    kernel was in the cache before the submit and after its wait (4 values), how many the helper
+    took (``compile_shared``: how many it and this process took), whether this process compiled
+    each when called, each's value, whether the helper is gone after the last wait, and whether
+    each was compiled in this process right after the submit."""
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache"), compile_ahead.ENVIRONMENT_SWITCH: switch}
     out = subprocess.run([sys.executable, "-c", PROBE.format(fate=fate)], env=env, capture_output=True,
                          text=True, timeout=300)
@@ -65,14 +68,14 @@ EXPECTED_ENERGIES = [0.5 * 2.0 * float(np.sum(np.arange(12.0) ** 2)), (0.105 ** 
 
 @pytest.mark.skipif(compile_ahead.available_cores() < 2, reason="no helper starts on one core")
 def test_the_helper_fills_the_cache_and_this_process_compiles_nothing(tmp_path):
-    cached, handed, compiled_here, energies, helper_gone = run_probe(tmp_path)
-    assert cached == [False, False, True, True] and handed == 2
+    cached, handed, compiled_here, energies, helper_gone, in_this_process = run_probe(tmp_path)
+    assert cached == [False, False, True, True] and handed == 2 and in_this_process == [False, False]
     assert compiled_here == [False, False]
     assert energies == pytest.approx(EXPECTED_ENERGIES, rel=1e-12) and helper_gone
 
 
 def test_switched_off_no_helper_starts_and_this_process_compiles(tmp_path):
-    cached, handed, compiled_here, energies, helper_gone = run_probe(tmp_path, switch="0")
+    cached, handed, compiled_here, energies, helper_gone, _ = run_probe(tmp_path, switch="0")
     assert cached == [False, False, False, False] and handed == 0
     assert compiled_here == [True, True]
     assert energies == pytest.approx(EXPECTED_ENERGIES, rel=1e-12) and helper_gone
@@ -80,10 +83,23 @@ def test_switched_off_no_helper_starts_and_this_process_compiles(tmp_path):
 
 @pytest.mark.skipif(compile_ahead.available_cores() < 2, reason="no helper starts on one core")
 def test_a_helper_that_dies_leaves_this_process_to_compile(tmp_path):
-    _, handed, compiled_here, energies, helper_gone = run_probe(tmp_path, fate="kill")
+    _, handed, compiled_here, energies, helper_gone, _ = run_probe(tmp_path, fate="kill")
     assert handed == 2
     assert compiled_here == [True, True]
     assert energies == pytest.approx(EXPECTED_ENERGIES, rel=1e-12) and helper_gone
+
+
+@pytest.mark.skipif(compile_ahead.available_cores() < 2, reason="no helper starts on one core")
+def test_compiling_shared_compiles_one_here_and_gives_the_helper_the_other(tmp_path):
+    cached, handed, compiled_here, energies, helper_gone, in_this_process = run_probe(tmp_path, fate="shared")
+    assert handed == 2 and in_this_process == [True, False]
+    assert cached == [False, False, True, True] and compiled_here == [False, False]
+    assert energies == pytest.approx(EXPECTED_ENERGIES, rel=1e-12) and helper_gone
+
+
+def test_switched_off_nothing_is_compiled_shared(tmp_path):
+    cached, handed, compiled_here, _, _, in_this_process = run_probe(tmp_path, fate="shared", switch="0")
+    assert handed == 0 and in_this_process == [False, False] and compiled_here == [True, True]
 
 
 @pytest.mark.parametrize("overrides", [

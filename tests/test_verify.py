@@ -15,6 +15,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from softsim.integrators import symplectic_euler
+from softsim.kernels.compile_ahead import argument_types
 from softsim.verify import references as ref
 from softsim.verify.cases import CASES, AxialVibration, Cantilever, Energy, Traction
 from softsim.verify.driver import with_lame, with_rest_state
@@ -24,10 +26,23 @@ from softsim.verify.report import COLUMNS, ladders, pareto_front, verify_report
 ROTATION_INVARIANT = ("stvk", "corotated", "neohookean")
 
 
+# The specialisations of the compiled step that the quick report's runs called, (kernel, argument types).
+QUICK_REPORT_STEPS = set()
+
+
 @pytest.fixture(scope="module")
 def report(tmp_path_factory):
     out = tmp_path_factory.mktemp("verify")
-    return verify_report(out, quick=True, threads=1, precisions=("float64",))
+    with pytest.MonkeyPatch.context() as patch:
+        make_call = symplectic_euler.advance_driver
+
+        def recording_driver(*arguments):
+            kernel, kernel_arguments = make_call(*arguments)
+            QUICK_REPORT_STEPS.add((kernel, argument_types(kernel, kernel_arguments)))
+            return kernel, kernel_arguments
+
+        patch.setattr(symplectic_euler, "advance_driver", recording_driver)
+        return verify_report(out, quick=True, threads=1, precisions=("float64",))
 
 
 def rows_of(rows, case, quantity, model=None, ladder=None):
@@ -213,6 +228,16 @@ def test_quick_energy_stays_bounded_and_its_error_is_first_order_in_dt(report):
     for r in rows_of(report.rows, "energy", "energy error"):
         if r.order is not None:
             assert 0.9 < r.order < 1.1
+
+
+def test_the_steps_recorded_ahead_are_those_the_quick_report_runs(report):
+    # ``softsim verify`` compiles the steps its cases will run before the first timed step, from
+    # each case's first run of each model (``Case.step_calls``); a later run compiling a step of
+    # its own would compile alone, and one recorded but never run would be compiled for nothing.
+    recorded = {(kernel, argument_types(kernel, arguments))
+                for case in CASES.values() for kernel, arguments in case.step_calls(quick=True)}
+    assert len(QUICK_REPORT_STEPS) >= 3            # no damping, damping, damping and tractions
+    assert recorded == QUICK_REPORT_STEPS
 
 
 def test_budget_answers_name_a_run_or_say_why_not(report):

@@ -147,6 +147,29 @@ def submit(calls):
     return len(items)
 
 
+def compile_shared(calls):
+    """Compile ``calls`` (as ``submit``'s) that the disk cache lacks, each specialisation once: half
+    in a helper process (``submit``), the other half, and the odd one, in this process, now (the
+    helper starts later and was slower per item: 13.8 against 11.9 s for ``softsim verify``'s
+    steps).  Returns once this process has compiled its share, the helper maybe still compiling
+    (``wait`` for it before calling the kernels), how many specialisations were compiled or handed
+    over; 0 where no helper starts (``enabled``): then each compiles when first called, as it
+    would have without this."""
+    if not enabled():
+        return 0
+    lacking = {}
+    for dispatcher, arguments in calls:
+        signature = argument_types(dispatcher, arguments)
+        if not is_compiled_or_cached(dispatcher, signature):
+            lacking.setdefault((dispatcher, signature), arguments)
+    handed_over = [(dispatcher, arguments) for (dispatcher, _), arguments in lacking.items()]
+    if not submit(handed_over[1::2]):
+        return 0
+    for dispatcher, signature in list(lacking)[::2]:
+        dispatcher.compile(signature)
+    return len(lacking)
+
+
 def wait(dispatcher=None):
     """Block until the helper (if one runs) has compiled what it was given for ``dispatcher`` (a
     jitted function; None: everything it was given); the seconds waited count in

@@ -25,7 +25,7 @@ from ..kernels.forces import elastic_forces
 from ..materials.models import MODEL_IDS, ROTATION_INVARIANT, model_lame_parameters
 from ..simulation import frame_energy
 from . import references as ref
-from .driver import Run, face_mask, tet_deformation_gradients, unique_edges
+from .driver import Run, RunRecorded, face_mask, recording_step_calls, tet_deformation_gradients, unique_edges
 
 MODELS = tuple(MODEL_IDS)
 # Half-width [m] of the selection boxes around a face.
@@ -665,13 +665,35 @@ class Case:
         """Rows of every model of ``models`` (default all) in every precision of ``precisions``
         (float32 for the models that have it)."""
         rows = []
+        for precision, chosen in self._variants(models, precisions):
+            rows += self.run(params or self.params, quick=quick, models=chosen, mutate=mutate, progress=progress,
+                             precision=precision)
+        return with_orders(rows)
+
+    def step_calls(self, quick=False, models=None, mutate=None, params=None, precisions=("float64",)):
+        """The calls of the compiled step (``[(kernel, arguments), ...]``) that ``self(...)`` with
+        these arguments makes, recorded from the first run of each model and precision
+        (``driver.recording_step_calls``; nothing is stepped): a case's runs of one model differ
+        in mesh and time step, not in the features that make the step compile apart (damping,
+        tractions)."""
+        with recording_step_calls() as calls:
+            for precision, chosen in self._variants(models, precisions):
+                for model in chosen:
+                    try:
+                        self.run(params or self.params, quick=quick, models=(model,), mutate=mutate,
+                                 precision=precision)
+                    except RunRecorded:
+                        pass
+        return calls
+
+    def _variants(self, models, precisions):
+        """``(precision, models)`` for each of ``precisions`` in which any of ``models`` (default
+        all) runs: this case's models, and in float32 those that have it."""
         for precision in precisions:
             chosen = tuple(m for m in (models or MODELS)
                            if m in self.models and (precision == "float64" or m in FLOAT32_MODELS))
             if chosen:
-                rows += self.run(params or self.params, quick=quick, models=chosen, mutate=mutate, progress=progress,
-                                 precision=precision)
-        return with_orders(rows)
+                yield precision, chosen
 
 
 CASES = {

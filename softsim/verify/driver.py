@@ -8,8 +8,13 @@ this way), and the time step is then taken from the model actually run.
 
 Wall time counts the calls to ``step`` only: not meshing, not the one-step JIT warm-up, not the
 measurements between calls (``setup_s`` holds the preparation time).
+
+Within ``recording_step_calls`` a ``Run`` runs nothing: it meshes its scene, builds its model,
+records the calls of the compiled step it would make and raises ``RunRecorded``.  ``softsim
+verify`` collects its cases' steps so, to compile them on both cores before any timed step.
 """
 
+import contextlib
 import copy
 import math
 import time as _time
@@ -20,13 +25,33 @@ import numpy as np
 from ..config import parse_scene
 from ..integrators.symplectic_euler import work_buffer
 from ..integrators.timestep import AUTO_SAFETY
-from ..model import State, initial_state
-from ..simulation import prepare, stable_dt_estimate, step
+from ..mesh import build_mesh
+from ..model import State, build_model, initial_state
+from ..simulation import prepare, stable_dt_estimate, step, step_calls
 
 
 # Relative change per chunk below which a float32 run counts as at rest: float32 round-off keeps
 # the last bits of a relaxed state moving (about 1e-7 relative).
 FLOAT32_REST_TOLERANCE = 1e-6
+# The list ``Run`` appends its step's calls to, instead of running, within ``recording_step_calls``.
+_recorded_calls = None
+
+
+class RunRecorded(Exception):
+    """Raised by ``Run`` within ``recording_step_calls``, once it has recorded its step's calls."""
+
+
+@contextlib.contextmanager
+def recording_step_calls():
+    """Within: each ``Run(...)`` meshes its scene, builds its model, appends the calls of the
+    compiled step that its runs make (``simulation.step_calls``, ``[(kernel, arguments), ...]``)
+    to the list this yields, and raises ``RunRecorded``: nothing is stepped or timed."""
+    global _recorded_calls
+    outer, _recorded_calls = _recorded_calls, []
+    try:
+        yield _recorded_calls
+    finally:
+        _recorded_calls = outer
 
 
 class Run:
@@ -43,6 +68,10 @@ class Run:
     def __init__(self, scene_data, dt_factor=1.0, mutate=None, precision="float64"):
         started = _time.perf_counter()
         self.scene = parse_scene({**copy.deepcopy(scene_data), "precision": precision})
+        if _recorded_calls is not None:
+            model = build_model(self.scene, build_mesh(self.scene.mesh))
+            _recorded_calls.extend(step_calls(self.scene, model if mutate is None else mutate(model)))
+            raise RunRecorded
         prepared = prepare(self.scene)
         model = prepared.model if mutate is None else mutate(prepared.model)
         self.model = model

@@ -26,6 +26,7 @@ from pathlib import Path
 from ..config.schema import FLOAT32_MODELS, PRECISIONS
 from ..errors import PLOT_EXTRA, ConfigError, MissingDependencyError
 from ..io.files import writable_folder
+from ..kernels import compile_ahead
 from . import references as ref
 from .cases import CASES, MODELS, VerifyRow
 
@@ -441,6 +442,7 @@ def verify_report(out_dir, quick=False, cases=None, models=MODELS, plot=True, pr
     numba.set_num_threads(threads or previous)
     try:
         load_start = _load()
+        compile_steps_ahead(names, quick, models, tuple(precisions), mutate)
         rows = []
         for name in names:
             rows += CASES[name](quick=quick, models=models, mutate=mutate, progress=progress,
@@ -449,6 +451,19 @@ def verify_report(out_dir, quick=False, cases=None, models=MODELS, plot=True, pr
     finally:
         numba.set_num_threads(previous)      # the caller's setting again
     return write_report(out_dir, rows, quick, plot=plot, machine=machine, started=started)
+
+
+def compile_steps_ahead(names, quick, models, precisions, mutate):
+    """Compile the step specialisations that the cases ``names`` will run, on two cores, before any
+    of them times a step (``compile_ahead.compile_shared``; ``Case.step_calls``): their runs then
+    load them from the disk cache.  Does nothing where no helper process may start (one core,
+    ``SOFTSIM_COMPILE_AHEAD=0``): each step then compiles before its case's first run."""
+    if not compile_ahead.enabled():
+        return 0
+    calls = []
+    for name in names:
+        calls += CASES[name].step_calls(quick=quick, models=models, mutate=mutate, precisions=precisions)
+    return compile_ahead.compile_shared(calls)
 
 
 def _load():
