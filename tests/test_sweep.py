@@ -665,3 +665,29 @@ def test_runs_no_worker_is_left_to_take_fail_and_the_sweep_ends(tmp_path, monkey
     reasons = {row["status_reason"] for row in result.failed}
     assert result.counts["complete"] + len(result.failed) == len(moduli) and result.failed
     assert reasons == {"no Dask worker was left to run it for 2 s (they died and none came back)"}
+
+
+def test_on_a_scheduler_of_its_own_runs_no_worker_is_left_to_take_fail_too(tmp_path, monkeypatch):
+    """The same on a cluster the sweep did not make (``--scheduler``), whose scheduler keeps
+    Dask's default of waiting for a worker for ever: the sweep's own watch ends it
+    (``runner.runs_cancelled_without_workers``)."""
+    monkeypatch.setattr(runner, "NO_WORKERS_TIMEOUT_S", 2.0)
+    distributed = import_distributed()
+    moduli = [1e6 * (k + 1) for k in range(8)]
+    runs, out = sweep_runs(tmp_path, {"base": "bar.yaml", "parameters": {"material.youngs_modulus": moduli}})
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=":0") as cluster:
+        with runner.remote_client(cluster.scheduler_address) as client:
+            closed = []
+
+            def close_the_worker(done, failed, running, total):
+                if done >= 1 and not closed:
+                    closed.append(done)
+                    cluster.scale(0)
+
+            started = time.monotonic()
+            result = run_sweep(runs, out, client, progress=close_the_worker)
+            waited = time.monotonic() - started
+    assert closed and result.counts["complete"] >= 1 and waited < 60.0
+    reasons = {row["status_reason"] for row in result.failed}
+    assert result.counts["complete"] + len(result.failed) == len(moduli) and result.failed
+    assert reasons == {"no Dask worker was left to run it for 2 s (they died and none came back)"}

@@ -53,9 +53,10 @@ LOST_REASONS = ("already forgotten", "lost dependencies", "scheduler-restart")
 # for one to join.
 CONNECT_TIMEOUT_S = 10.0
 WORKER_WAIT_S = 30.0
-# A local cluster's runs fail when no worker is left to take them for this long [s], instead of
-# waiting for ever (``local_cluster_config``).
+# A sweep's runs left fail when the cluster has had no worker for this long [s], instead of
+# waiting for ever (``runs_cancelled_without_workers``); it looks every WORKER_POLL_S seconds.
 NO_WORKERS_TIMEOUT_S = 60.0
+WORKER_POLL_S = 1.0
 # A run on a worker asks the scheduler whether its sweep was stopped (Ctrl-C) at its frames, at
 # most once in this many seconds; an answer not back within STOP_ASK_TIMEOUT_S is not waited for.
 STOP_POLL_S = 1.0
@@ -389,10 +390,9 @@ def local_cluster_config():
     the worker died and came back meanwhile: with every worker killed twice, 15 s apart (the
     default timeout), it closed both nannies while their workers restarted, and the sweep waited
     for a worker, for ever (a test, on a loaded host, once in 5-8 runs of its module).  Here the
-    nannies alone restart workers, and a run that no worker is left to take for
-    ``NO_WORKERS_TIMEOUT_S`` fails (Dask's ``no-workers-timeout``)."""
-    return {"distributed.deploy.lost-worker-timeout": "365 days",
-            "distributed.scheduler.no-workers-timeout": f"{NO_WORKERS_TIMEOUT_S}s"}
+    nannies alone restart workers; where none is left, ``runs_cancelled_without_workers`` ends
+    the sweep."""
+    return {"distributed.deploy.lost-worker-timeout": "365 days"}
 
 
 @contextlib.contextmanager
@@ -469,6 +469,42 @@ def _connected(distributed, address, worker_wait_s):
         yield client
 
 
+@contextlib.contextmanager
+def runs_cancelled_without_workers(client, futures, timeout_s=None):
+    """Within: a thread asks the scheduler every ``WORKER_POLL_S`` seconds whether its cluster has
+    a worker, and once it has had none for ``timeout_s`` (``NO_WORKERS_TIMEOUT_S``) cancels the
+    runs of ``futures`` (a mapping whose keys are the runs' futures, read then) not yet done.
+    Yields the set of the futures it cancelled.  Dask itself would wait for a worker for ever: a
+    local cluster's scheduler could be told not to (``no-workers-timeout``), but a scheduler given
+    by its address is not the sweep's to configure, and this serves both."""
+    timeout_s = NO_WORKERS_TIMEOUT_S if timeout_s is None else timeout_s
+    cancelled = set()
+    stopped = threading.Event()
+
+    def watch():
+        since = None
+        while not stopped.wait(WORKER_POLL_S):
+            try:
+                has_workers = bool(client.nthreads())
+            except Exception:       # the client or its scheduler is gone: Dask cancels the runs itself
+                return
+            now = time.monotonic()
+            if has_workers or since is None:
+                since = None if has_workers else now
+            elif now - since >= timeout_s:
+                left = [future for future in futures.copy() if not future.done()]
+                cancelled.update(left)
+                client.cancel(left)
+
+    thread = threading.Thread(target=watch, name="softsim-sweep-workers", daemon=True)
+    thread.start()
+    try:
+        yield cancelled
+    finally:
+        stopped.set()
+        thread.join()
+
+
 def run_sweep(runs, output_dir, client, shared_dir=False, force=False, numba_threads=None,
               progress: Optional[Callable] = None):
     """Run ``runs`` (from ``spec.expand_sweep``) on ``client``; returns a ``SweepResult``.
@@ -521,47 +557,51 @@ def run_sweep(runs, output_dir, client, shared_dir=False, force=False, numba_thr
                 _remove_run_files(run.path)
             submit(run, mesh_futures[mesh_keys[run.index]])
         finished = distributed.as_completed(list(futures)) if futures else ()
-        for future in finished:
-            run = futures.pop(future)   # released once read: a run's bytes leave the worker's memory
-            try:
-                outcome = future.result()
-                future.release()
-                error = outcome["error"]
-                for message in outcome["warnings"]:
-                    log.warning("run %d (%s): %s", run.index + 1, run.name, message)
-                if outcome["files"]:
-                    _write_files(outcome["files"], output_dir)
-                metrics = outcome["metrics"]
-                if shared_dir and metrics is not None and not _appears(run.path, shared_file_wait_s):
-                    shared_file_wait_s = 0.0    # not shared: the next runs' files need no waiting for
-                    error, metrics = (f"the worker on {outcome['host']} wrote {run.path}, but this machine does not "
-                                      f"see it there: --shared-dir must be a folder this machine and every worker "
-                                      f"see at the same path"), None
-            except distributed.client.FutureCancelledError as exc:
-                lost = exc.reason in LOST_REASONS and client.status == "running"
-                if lost and resubmits[run.index] < LOST_RUN_RESUBMITS:
-                    resubmits[run.index] += 1
-                    # carrying its mesh: no scatter while workers come and go, none to lose again
-                    finished.add(submit(run, meshes[mesh_keys[run.index]]))
-                    continue
-                error = (f"lost {resubmits[run.index] + 1} times with a worker that died" if lost
-                         else f"cancelled by Dask ({exc.reason})")
-                metrics = None
-            except distributed.scheduler.NoWorkerError as exc:      # ``local_cluster_config``
-                error, metrics = (f"no Dask worker was left to run it for {exc.timeout:g} s (they died and none "
-                                  f"came back)"), None
-            except distributed.KilledWorker:   # the run's process died on every worker that tried it
-                error, metrics = ("the worker process running it died, on every try (out of memory, or a crash: "
-                                  "see the workers' logs)"), None
-            except Exception as exc:    # the result could not come back
-                error, metrics = (f"{type(exc).__name__}: {exc}".splitlines() or [""])[0], None
-            if metrics is None and not being_written(run.path):   # an older file would contradict the summary
-                _remove_run_files(run.path)
-            row = rows[run.index] = summary_row(run, metrics, error)
-            done += 1
-            failed += row["status"] != "complete"
-            if progress is not None:
-                progress(done, failed, min(slots, total - done), total)
+        watching = runs_cancelled_without_workers(client, futures) if futures else contextlib.nullcontext(set())
+        with watching as without_workers:
+            for future in finished:
+                run = futures.pop(future)   # released once read: a run's bytes leave the worker's memory
+                try:
+                    outcome = future.result()
+                    future.release()
+                    error = outcome["error"]
+                    for message in outcome["warnings"]:
+                        log.warning("run %d (%s): %s", run.index + 1, run.name, message)
+                    if outcome["files"]:
+                        _write_files(outcome["files"], output_dir)
+                    metrics = outcome["metrics"]
+                    if shared_dir and metrics is not None and not _appears(run.path, shared_file_wait_s):
+                        shared_file_wait_s = 0.0    # not shared: the next runs' files need no waiting for
+                        error, metrics = (f"the worker on {outcome['host']} wrote {run.path}, but this machine does "
+                                          f"not see it there: --shared-dir must be a folder this machine and every "
+                                          f"worker see at the same path"), None
+                except distributed.client.FutureCancelledError as exc:
+                    lost = exc.reason in LOST_REASONS and client.status == "running" and future not in without_workers
+                    if lost and resubmits[run.index] < LOST_RUN_RESUBMITS:
+                        resubmits[run.index] += 1
+                        # carrying its mesh: no scatter while workers come and go, none to lose again
+                        finished.add(submit(run, meshes[mesh_keys[run.index]]))
+                        continue
+                    if future in without_workers:
+                        error = (f"no Dask worker was left to run it for {NO_WORKERS_TIMEOUT_S:g} s (they died and "
+                                 f"none came back)")
+                    elif lost:
+                        error = f"lost {resubmits[run.index] + 1} times with a worker that died"
+                    else:
+                        error = f"cancelled by Dask ({exc.reason})"
+                    metrics = None
+                except distributed.KilledWorker:   # the run's process died on every worker that tried it
+                    error, metrics = ("the worker process running it died, on every try (out of memory, or a crash: "
+                                      "see the workers' logs)"), None
+                except Exception as exc:    # the result could not come back
+                    error, metrics = (f"{type(exc).__name__}: {exc}".splitlines() or [""])[0], None
+                if metrics is None and not being_written(run.path):   # an older file would contradict the summary
+                    _remove_run_files(run.path)
+                row = rows[run.index] = summary_row(run, metrics, error)
+                done += 1
+                failed += row["status"] != "complete"
+                if progress is not None:
+                    progress(done, failed, min(slots, total - done), total)
     except KeyboardInterrupt:
         result.cancelled = True
         if futures:         # the runs already started stop at their next frame: Dask cannot stop a task
