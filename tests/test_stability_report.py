@@ -19,17 +19,35 @@ from softsim.config import load_scene
 from softsim.errors import ConfigError
 from softsim.reports.catalogue import MODELS, SCENE_NAMES, catalogue
 from softsim.reports.limits import LimitCase, limit_meshes, measure_limit
-from softsim.reports.stability import COLUMNS, stability_report
+from softsim.integrators import guard, symplectic_euler
+from softsim.kernels.compile_ahead import argument_types
+from softsim.reports.stability import COLUMNS, catalogue_run_calls, limit_step_calls, stability_report
 
 SCENES = ("crushed-cube", "inverted-squashed", "large-dt-refuse", "large-dt-allow")
 REPORT_MODELS = ("stvk", "neohookean")
 CASE = LimitCase("linear", 1e5, 0.3, "structured")
 
 
+# The guard's measures and the steps the report's runs called, (kernel, argument types).
+REPORT_CALLS = set()
+
+
 @pytest.fixture(scope="module")
 def report(tmp_path_factory):
     out = tmp_path_factory.mktemp("stability")
-    return stability_report(out, quick=True, scenes=SCENES, models=REPORT_MODELS, cases=[CASE])
+    with pytest.MonkeyPatch.context() as patch:
+        for module, name in ((symplectic_euler, "advance_driver"), (guard, "element_measure_call")):
+            patch.setattr(module, name, recording(getattr(module, name)))
+        return stability_report(out, quick=True, scenes=SCENES, models=REPORT_MODELS, cases=[CASE])
+
+
+def recording(make_call):
+    """``make_call`` (returning a kernel and its arguments), adding each call's types to REPORT_CALLS."""
+    def make_and_record(*arguments):
+        kernel, kernel_arguments = make_call(*arguments)
+        REPORT_CALLS.add((kernel, argument_types(kernel, kernel_arguments)))
+        return kernel, kernel_arguments
+    return make_and_record
 
 
 @pytest.fixture(scope="module")
@@ -191,3 +209,15 @@ def test_an_output_folder_that_cannot_be_written_is_refused_before_any_run(tmp_p
     (tmp_path / "file").write_text("")
     with pytest.raises(ConfigError, match=r"^-o = '.*file/out': cannot write there"):
         stability_report(tmp_path / "file" / "out", quick=True)
+
+
+def test_the_kernels_compiled_ahead_are_those_the_report_runs(report):
+    # ``softsim stability`` compiles the guard's measure and the step of every run on both cores
+    # before the first (``compile_ahead.compile_shared``): a run compiling one of its own would
+    # compile alone, and one compiled ahead but never run would cost for nothing.
+    entries = [entry for entry in catalogue(report.out_dir / "meshes", quick=True) if entry.name in SCENES]
+    meshes = limit_meshes(report.out_dir / "meshes", (CASE.mesh_kind,))
+    ahead = {(kernel, argument_types(kernel, arguments))
+             for kernel, arguments in catalogue_run_calls(entries, REPORT_MODELS) + limit_step_calls([CASE], meshes)}
+    assert len(REPORT_CALLS) >= 3
+    assert ahead == REPORT_CALLS

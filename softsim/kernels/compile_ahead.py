@@ -7,6 +7,9 @@ guard's measure of the tets 4-5 s.  ``submit`` hands specialisations that Numba'
 lacks to a helper process (``main``), which compiles them into that cache while this process
 goes on compiling the others; ``wait(kernel)``, just before this process first calls ``kernel``,
 blocks until the helper has compiled it, and the call then loads the machine code from the cache.
+``compile_shared`` compiles a list of specialisations on both cores at once, the helper taking
+them from the first and this process from the last, before any of them is called (``softsim
+verify`` and ``softsim stability``, whose runs must not be timed beside a compiling helper).
 The machine code is the same either way: the helper imports the same modules from the same
 ``sys.path`` (and so sets the same LLVM options, ``kernels.jit``), loads Numba's extensions as a
 first call does, and compiles each function for the same argument types.  Both processes write
@@ -21,11 +24,13 @@ mid-write.  Set ``SOFTSIM_COMPILE_AHEAD=0`` to never start one; none starts wher
 is available.
 """
 
+import contextlib
 import importlib
 import os
 import pickle
 import subprocess
 import sys
+import threading
 import time
 
 # ``SOFTSIM_COMPILE_AHEAD=0`` in the environment: never start a helper.
@@ -39,22 +44,45 @@ _HELPER_CODE = "import sys; sys.path[:] = {path!r}; from softsim.kernels.compile
 
 class _Helper:
     """A helper process compiling ``items``, ``[(module, qualname, signature), ...]``, in their
-    order, writing ``DONE`` on its standard output as each is done.  Raises ``OSError`` where it
-    cannot be started or given its work."""
+    order, writing ``DONE`` on its standard output as each is done; a thread here counts the reports
+    (``reported``; the helper is then at item ``reported``, counting from 0).  Its standard input
+    stays open while this process may want more: ``do_only`` shortens its work, ``release`` closes
+    it (the helper then exits after its current item).  Raises ``OSError`` where it cannot be
+    started or given its work."""
 
     def __init__(self, items):
         work = pickle.dumps(items)
         self.functions = [(module, qualname) for module, qualname, _ in items]
         self.reported = 0
+        self.exited = False
+        self._reports = threading.Condition()
         program = _HELPER_CODE.format(path=[str(p) for p in sys.path])
         self.process = subprocess.Popen([sys.executable, "-c", program], stdin=subprocess.PIPE,
                                         stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, start_new_session=True)
         try:
             self.process.stdin.write(work)
-            self.process.stdin.close()
+            self.process.stdin.flush()
         except OSError:
             self.release()
+            self.process.stdout.close()
             raise
+        threading.Thread(target=self._count_reports, name="softsim-compile-ahead", daemon=True).start()
+
+    def _count_reports(self):
+        """Count the helper's reports until it exits (its output ends), then reap it."""
+        try:
+            for line in iter(self.process.stdout.readline, b""):
+                with self._reports:
+                    self.reported += line == DONE
+                    self._reports.notify_all()
+        except (OSError, ValueError):
+            pass
+        finally:
+            self.process.stdout.close()
+            self.process.wait()
+            with self._reports:
+                self.exited = True
+                self._reports.notify_all()
 
     def items_through(self, dispatcher):
         """How many items must be done before ``dispatcher``'s are all done (0: none is its)."""
@@ -65,25 +93,29 @@ class _Helper:
         """Block until ``count`` items are done, or the helper has exited; returns whether it has
         nothing more to do for this process (then released)."""
         try:
-            while self.reported < count:
-                line = self.process.stdout.readline()
-                if not line:
-                    break
-                self.reported += line == DONE
+            with self._reports:
+                self._reports.wait_for(lambda: self.reported >= count or self.exited)
         except BaseException:
             self.release()
             raise
-        if self.reported < count or self.reported == len(self.functions):
+        if self.reported < count or self.reported >= len(self.functions):
             self.release()
             return True
         return False
 
+    def do_only(self, count):
+        """Have the helper compile only its first ``count`` items, and exit after them."""
+        self.functions = self.functions[:count]
+        try:
+            self.process.stdin.write(b"%d\n" % count)
+            self.process.stdin.flush()
+        except (OSError, ValueError):       # exited, or released
+            pass
+
     def release(self):
-        """Stop listening: a helper with nothing left exits; one still compiling finishes its
-        current item and exits when it finds nobody reading its reports."""
-        self.process.stdout.close()
-        if self.reported == len(self.functions):
-            self.process.wait()
+        """Stop giving the helper work: it exits after the item it is compiling."""
+        with contextlib.suppress(OSError):
+            self.process.stdin.close()
 
 
 _helper = None
@@ -148,13 +180,13 @@ def submit(calls):
 
 
 def compile_shared(calls):
-    """Compile ``calls`` (as ``submit``'s) that the disk cache lacks, each specialisation once: half
-    in a helper process (``submit``), the other half, and the odd one, in this process, now (the
-    helper starts later and was slower per item: 13.8 against 11.9 s for ``softsim verify``'s
-    steps).  Returns once this process has compiled its share, the helper maybe still compiling
-    (``wait`` for it before calling the kernels), how many specialisations were compiled or handed
-    over; 0 where no helper starts (``enabled``): then each compiles when first called, as it
-    would have without this."""
+    """Compile ``calls`` (as ``submit``'s) that the disk cache lacks, each specialisation once, on
+    two cores, now: a helper process takes them from the first (``submit``), this process from the
+    last, until the two meet (their costs differ: 12 to 45 s for the step of ``softsim
+    stability``'s scenes).  Returns once this process has done its share, the helper maybe still
+    compiling its last one (``wait`` for it before calling the kernels); returns how many
+    specialisations were compiled or handed over, 0 where no helper starts (``enabled``): then each
+    compiles when first called, as it would have without this."""
     if not enabled():
         return 0
     lacking = {}
@@ -162,12 +194,16 @@ def compile_shared(calls):
         signature = argument_types(dispatcher, arguments)
         if not is_compiled_or_cached(dispatcher, signature):
             lacking.setdefault((dispatcher, signature), arguments)
-    handed_over = [(dispatcher, arguments) for (dispatcher, _), arguments in lacking.items()]
-    if not submit(handed_over[1::2]):
+    if len(lacking) < 2 or not submit([(dispatcher, arguments) for (dispatcher, _), arguments in lacking.items()]):
         return 0
-    for dispatcher, signature in list(lacking)[::2]:
+    helper, items = _helper, list(lacking)
+    first_here = len(items)             # this process compiles items[first_here:]
+    while first_here > 1 and helper.reported < first_here - 1 and not helper.exited:
+        dispatcher, signature = items[first_here - 1]
         dispatcher.compile(signature)
-    return len(lacking)
+        first_here -= 1
+    helper.do_only(first_here)
+    return len(items)
 
 
 def wait(dispatcher=None):
@@ -203,10 +239,13 @@ def waited_seconds():
     return _waited_s
 
 
-def _compile_items(items, report):
-    """The helper's work: compile each ``(module, qualname, signature)`` of ``items``, calling
-    ``report()`` after each (compiled or not)."""
-    for module, qualname, signature in items:
+def _compile_items(items, report, wanted=lambda k: True):
+    """The helper's work: compile each ``(module, qualname, signature)`` of ``items`` that
+    ``wanted(k)`` (k its index) when its turn comes, calling ``report()`` after each (compiled or
+    not); stops at the first one not wanted."""
+    for k, (module, qualname, signature) in enumerate(items):
+        if not wanted(k):
+            return
         function = importlib.import_module(module)
         for name in qualname.split("."):
             function = getattr(function, name)
@@ -221,8 +260,18 @@ def main():
     """The helper: reads the items pickled on its standard input, compiles them
     (``_compile_items``) and writes ``DONE`` to its standard output after each; anything else
     written to the standard output (Numba's debug output) goes to the standard error instead.
-    Exits when nobody reads its reports any more."""
-    items = pickle.loads(sys.stdin.buffer.read())
+    A line ``N`` on its standard input after the items leaves it the first N items only; the end of
+    its standard input (``_Helper.release``, or its parent gone) stops it after its current item,
+    as does nobody reading its reports."""
+    items = pickle.load(sys.stdin.buffer)
+    limit = [len(items)]                # a list: set by the thread below
+
+    def read_limits():
+        for line in sys.stdin.buffer:
+            limit[0] = min(limit[0], int(line))
+        limit[0] = 0
+
+    threading.Thread(target=read_limits, daemon=True).start()
     reports = os.fdopen(os.dup(sys.stdout.fileno()), "wb", buffering=0)
     os.dup2(sys.stderr.fileno(), sys.stdout.fileno())
     from numba.core import entrypoints
@@ -233,6 +282,6 @@ def main():
         reports.write(DONE)
 
     try:
-        _compile_items(items, report)
+        _compile_items(items, report, lambda k: k < limit[0])
     except BrokenPipeError:
         pass

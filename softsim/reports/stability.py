@@ -34,10 +34,11 @@ import numpy as np
 
 from ..errors import PLOT_EXTRA, ConfigError, MissingDependencyError, SoftsimError
 from ..io.files import writable_folder
+from ..kernels import compile_ahead
 from ..kernels.jit import compile_timer
 from ..io.hdf5 import frames_written, read_resume_state
 from .catalogue import MODELS, SCENE_NAMES, catalogue
-from .limits import MESH_KINDS, LimitCase, limit_cases, limit_meshes, measure_limit, verdicts
+from .limits import MESH_KINDS, LimitCase, limit_cases, limit_meshes, limit_scene, measure_limit, verdicts
 
 COLUMNS = ("scene", "model", "outcome", "steps", "steps_planned", "dt_s", "max_abs_J_minus_1", "min_J",
            "min_J_last", "energy_drift", "drift_note", "wall_time_s", "warnings")
@@ -242,6 +243,26 @@ def _check_scene_names(scenes):
         raise ConfigError(f"unknown catalogue scene {', '.join(unknown)} (known: {', '.join(sorted(SCENE_NAMES))})")
 
 
+def catalogue_run_calls(entries, models):
+    """The calls of the guard's measure and of the step (``simulation.run_calls``) that the runs
+    of ``entries`` x ``models`` make first, ``[(kernel, arguments), ...]``; scenes that the schema
+    or the model refuses are left out (their rows say why)."""
+    from ..config import parse_scene
+    from ..mesh import build_mesh
+    from ..model import build_model
+    from ..simulation import run_calls
+
+    calls = []
+    for entry in entries:
+        for model in models:
+            try:
+                scene = parse_scene(entry.scene_data(model))
+                calls += run_calls(scene, build_model(scene, build_mesh(scene.mesh)))
+            except SoftsimError:
+                continue
+    return calls
+
+
 def run_catalogue(out_dir, quick=False, scenes=None, models=MODELS, progress=None):
     """Run every catalogue scene (or those named in ``scenes``) for every model in ``models``.
 
@@ -253,6 +274,8 @@ def run_catalogue(out_dir, quick=False, scenes=None, models=MODELS, progress=Non
     entries = catalogue(out_dir / "meshes", quick=quick)
     if scenes is not None:
         entries = [entry for entry in entries if entry.name in scenes]
+    if compile_ahead.enabled():       # on both cores, before the first run
+        compile_ahead.compile_shared(catalogue_run_calls(entries, models))
     rows = []
     total = len(entries) * len(models)
     for entry in entries:
@@ -304,6 +327,20 @@ def format_table(rows):
 # Measured limits
 
 
+def limit_step_calls(cases, meshes):
+    """The calls of the step (``simulation.step_calls``) that the measurements of ``cases`` on
+    ``meshes`` (``{kind: path}``) make, ``[(kernel, arguments), ...]``."""
+    from ..mesh import build_mesh
+    from ..model import build_model
+    from ..simulation import step_calls
+
+    calls = []
+    for case in cases:
+        scene = limit_scene(case, meshes[case.mesh_kind])
+        calls += step_calls(scene, build_model(scene, build_mesh(scene.mesh)))
+    return calls
+
+
 def measure_limits(out_dir, cases, steps=QUICK_LIMIT_STEPS, bracket="theory", progress=None):
     """``LimitMeasurement`` of each ``LimitCase`` in ``cases``; meshes go to ``out_dir/meshes``.
 
@@ -311,6 +348,8 @@ def measure_limits(out_dir, cases, steps=QUICK_LIMIT_STEPS, bracket="theory", pr
     """
     kinds = tuple(kind for kind in MESH_KINDS if any(case.mesh_kind == kind for case in cases))
     meshes = limit_meshes(Path(out_dir) / "meshes", kinds)
+    if compile_ahead.enabled():       # on both cores, before the first measurement
+        compile_ahead.compile_shared(limit_step_calls(cases, meshes))
     out = []
     for case in cases:
         with _captured_warnings():
