@@ -182,7 +182,7 @@ def submit(calls):
 def compile_shared(calls):
     """Compile ``calls`` (as ``submit``'s) that the disk cache lacks, each specialisation once, on
     two cores, now: a helper process takes them from the first (``submit``), this process from the
-    last, until the two meet (their costs differ: 12 to 45 s for the step of ``softsim
+    last, until the two meet (their costs differ: 7 to 45 s for the step of ``softsim
     stability``'s scenes).  Returns once this process has done its share, the helper maybe still
     compiling its last one (``wait`` for it before calling the kernels); returns how many
     specialisations were compiled or handed over, 0 where no helper starts (``enabled``): then each
