@@ -151,8 +151,7 @@ def prepare(scene, mesh=None, resuming=False, compile_in_helper=False):
     from a stored frame, so what the initial state would do (start in the ground) is not warned of.
     compile_in_helper: start compiling the step and the guard in a helper process, where the disk
     cache lacks them (``compile_run_ahead``), once the model is built."""
-    mesh = build_mesh(scene.mesh) if mesh is None else mesh
-    model = build_model(scene, mesh)
+    model = scene_model(scene, mesh)
     if compile_in_helper:
         compile_run_ahead(scene, model)
     if model.has_ground and not resuming:
@@ -174,6 +173,12 @@ def prepare(scene, mesh=None, resuming=False, compile_in_helper=False):
         plan = plan_time(scene.time.duration, scene.output.frame_interval, dt=dt, step_text=step_text)
     return Prepared(scene=scene, model=model, plan=plan, dt_estimate=dt_estimate, safe_dt=safe_dt,
                     substeps=substeps, wave_speed=wave_speed)
+
+
+def scene_model(scene, mesh=None):
+    """The ``Model`` of ``scene``, meshed unless ``mesh`` (a ``TetMesh`` built from ``scene.mesh``)
+    is given: what ``prepare`` builds before it estimates the stable step and plans the steps."""
+    return build_model(scene, build_mesh(scene.mesh) if mesh is None else mesh)
 
 
 def warn_of_start_in_ground(scene, model):

@@ -248,16 +248,14 @@ def catalogue_run_calls(entries, models):
     of ``entries`` x ``models`` make first, ``[(kernel, arguments), ...]``; scenes that the schema
     or the model refuses are left out (their rows say why)."""
     from ..config import parse_scene
-    from ..mesh import build_mesh
-    from ..model import build_model
-    from ..simulation import run_calls
+    from ..simulation import run_calls, scene_model
 
     calls = []
     for entry in entries:
         for model in models:
             try:
                 scene = parse_scene(entry.scene_data(model))
-                calls += run_calls(scene, build_model(scene, build_mesh(scene.mesh)))
+                calls += run_calls(scene, scene_model(scene))
             except SoftsimError:
                 continue
     return calls
@@ -330,14 +328,12 @@ def format_table(rows):
 def limit_step_calls(cases, meshes):
     """The calls of the step (``simulation.step_calls``) that the measurements of ``cases`` on
     ``meshes`` (``{kind: path}``) make, ``[(kernel, arguments), ...]``."""
-    from ..mesh import build_mesh
-    from ..model import build_model
-    from ..simulation import step_calls
+    from ..simulation import scene_model, step_calls
 
     calls = []
     for case in cases:
         scene = limit_scene(case, meshes[case.mesh_kind])
-        calls += step_calls(scene, build_model(scene, build_mesh(scene.mesh)))
+        calls += step_calls(scene, scene_model(scene))
     return calls
 
 

@@ -470,14 +470,13 @@ def _connected(distributed, address, worker_wait_s):
 
 
 @contextlib.contextmanager
-def runs_cancelled_without_workers(client, futures, timeout_s=None):
+def runs_cancelled_without_workers(client, futures):
     """Within: a thread asks the scheduler every ``WORKER_POLL_S`` seconds whether its cluster has
-    a worker, and once it has had none for ``timeout_s`` (``NO_WORKERS_TIMEOUT_S``) cancels the
+    a worker, and once it has had none for ``NO_WORKERS_TIMEOUT_S`` seconds cancels the
     runs of ``futures`` (a mapping whose keys are the runs' futures, read then) not yet done.
     Yields the set of the futures it cancelled.  Dask itself would wait for a worker for ever: a
     local cluster's scheduler could be told not to (``no-workers-timeout``), but a scheduler given
     by its address is not the sweep's to configure, and this serves both."""
-    timeout_s = NO_WORKERS_TIMEOUT_S if timeout_s is None else timeout_s
     cancelled = set()
     stopped = threading.Event()
 
@@ -491,7 +490,7 @@ def runs_cancelled_without_workers(client, futures, timeout_s=None):
             now = time.monotonic()
             if has_workers or since is None:
                 since = None if has_workers else now
-            elif now - since >= timeout_s:
+            elif now - since >= NO_WORKERS_TIMEOUT_S:
                 left = [future for future in futures.copy() if not future.done()]
                 cancelled.update(left)
                 client.cancel(left)

@@ -25,9 +25,8 @@ import numpy as np
 from ..config import parse_scene
 from ..integrators.symplectic_euler import work_buffer
 from ..integrators.timestep import AUTO_SAFETY
-from ..mesh import build_mesh
-from ..model import State, build_model, initial_state
-from ..simulation import prepare, stable_dt_estimate, step, step_calls
+from ..model import State, initial_state
+from ..simulation import prepare, scene_model, stable_dt_estimate, step, step_calls
 
 
 # Relative change per chunk below which a float32 run counts as at rest: float32 round-off keeps
@@ -69,7 +68,7 @@ class Run:
         started = _time.perf_counter()
         self.scene = parse_scene({**copy.deepcopy(scene_data), "precision": precision})
         if _recorded_calls is not None:
-            model = build_model(self.scene, build_mesh(self.scene.mesh))
+            model = scene_model(self.scene)
             _recorded_calls.extend(step_calls(self.scene, model if mutate is None else mutate(model)))
             raise RunRecorded
         prepared = prepare(self.scene)
