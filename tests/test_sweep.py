@@ -500,6 +500,32 @@ def test_runs_lost_with_their_workers_are_submitted_again(tmp_path, client):
     assert all((out / row["file"]).is_file() for row in result.rows)
 
 
+def test_a_run_the_scheduler_forgot_is_submitted_again(tmp_path, client):
+    """The race the test above can hit: a run finished on a worker that died while the client
+    fetched its result, and could not run again (its mesh died too), so the scheduler forgot it;
+    asked about the key, it answers "cancelled" with no reason, which the client calls "unknown".
+    Here the scheduler forgets a run not yet done and is asked about it: the run is submitted again
+    and finishes."""
+    sweep = {"base": "bar.yaml", "parameters": {"material.youngs_modulus": [1e6, 2e6, 3e6, 4e6]}}
+    runs, out = sweep_runs(tmp_path, sweep)
+    forgotten = []
+
+    def forget_a_run(dask_scheduler, client_id):
+        runs_left = [key for key, task in dask_scheduler.tasks.items()
+                     if str(key).startswith("softsim-run-") and task.state != "memory"]
+        key = sorted(runs_left)[-1]
+        dask_scheduler.client_releases_keys(keys=[key], client=client_id, stimulus_id="test-forget")
+        dask_scheduler.report_on_key(key, client=client_id)
+        return key
+
+    def forget_once(done, failed, running, total):
+        if done >= 1 and not forgotten:
+            forgotten.append(client.run_on_scheduler(forget_a_run, client_id=client.id))
+
+    result = run_sweep(runs, out, client, progress=forget_once)
+    assert forgotten and result.counts["complete"] == 4, [row["status_reason"] for row in result.failed]
+
+
 def test_a_shared_dir_this_machine_does_not_see_fails_the_runs(tmp_path, client, monkeypatch):
     """With --shared-dir, a worker that writes where this machine does not see the file (another
     folder at that path on its host) does not pass for a complete run."""

@@ -47,8 +47,11 @@ SCATTER_TIMEOUT_S = 120.0
 LOST_RUN_RESUBMITS = 3
 # Dask's reasons for cancelling a task that mean the workers lost what it needs (its scattered
 # mesh died with a worker) or all of it (a restart of the cluster); not the reasons that mean the
-# client lost the scheduler or another client cancelled it.
-LOST_REASONS = ("already forgotten", "lost dependencies", "scheduler-restart")
+# client lost the scheduler or another client cancelled it.  "unknown" is how the client names a
+# key the scheduler reports it no longer has, with no reason: a run that had finished on a worker
+# that died while its result was being fetched, and that could not run again without the mesh
+# that died with it (``Scheduler.report_on_key``).
+LOST_REASONS = ("already forgotten", "lost dependencies", "scheduler-restart", "unknown")
 # Seconds to wait for a scheduler to answer, and on connecting to a cluster that has no workers,
 # for one to join.
 CONNECT_TIMEOUT_S = 10.0
