@@ -15,7 +15,7 @@ from softsim.config import parse_scene
 from softsim.integrators.symplectic_euler import work_buffer
 from softsim.kernels.blocked import build_block_layout
 from softsim.model import initial_state
-from softsim.simulation import prefetch_trial_running, prepare, step
+from softsim.simulation import prefetch_trial_running, prepare, step, step_calls
 
 YOUNGS_MODULUS = 1e8
 POISSONS_RATIO = 0.3
@@ -61,6 +61,11 @@ class Softsim:
 
     def run(self, steps):
         step(self.model, self.state, self.dt, steps, self.damping, self.work)
+
+    def step_calls(self):
+        """The compiled step's calls ``run`` makes (``simulation.step_calls``), to compile them ahead
+        (``timing.compile_steps_ahead``)."""
+        return step_calls(self.prepared.scene, self.model, self.state)
 
     def settle(self, steps):
         """Where the step measures whether to prefetch (``BlockLayout.measure_prefetch``), end its

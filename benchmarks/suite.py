@@ -115,6 +115,7 @@ def thread_scaling(sizes, seconds, repeats, threads):
     class OnThreads:
         def __init__(self, sim, n):
             self.sim, self.n, self.tet_count = sim, n, sim.tet_count
+            self.step_calls = sim.step_calls
 
         def run(self, steps):
             numba.set_num_threads(self.n)

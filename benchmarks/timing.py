@@ -7,6 +7,8 @@ process and comparing medians of ratios taken in the same round keeps the compar
 import statistics
 import time
 
+from softsim.kernels import compile_ahead
+
 
 def calibrate(runner, seconds):
     """Steps that take about ``seconds`` for ``runner`` (after a first call that compiles)."""
@@ -20,13 +22,24 @@ def calibrate(runner, seconds):
     return max(1, int(steps * seconds / elapsed))
 
 
+def compile_steps_ahead(runners):
+    """Compile the steps of the runners of ``runners`` (name -> runner) that have ``step_calls``
+    (softsim's) on both cores, those Numba's cache lacks (``compile_ahead.compile_shared``), and
+    wait until all are compiled: their first calls would compile them one after another, on one
+    core.  Nothing is timed while the helper compiles."""
+    calls = [call for runner in runners.values() if hasattr(runner, "step_calls") for call in runner.step_calls()]
+    compile_ahead.compile_shared(calls)
+    compile_ahead.wait()
+
+
 def interleaved(runners, seconds, repeats):
     """``{name: [M tet-steps/s per round]}`` timing each runner of ``runners`` (name -> runner) in turn.
 
     A runner has ``tet_count`` and ``run(steps)``, and may have ``settle(steps)``, called once after
-    its calibration, before the rounds; a callable entry ``name -> f()`` returning a rate in M/s
-    (the STREAM bound) is called as is.
+    its calibration, before the rounds, and ``step_calls()`` (``compile_steps_ahead``); a callable
+    entry ``name -> f()`` returning a rate in M/s (the STREAM bound) is called as is.
     """
+    compile_steps_ahead(runners)
     steps = {name: calibrate(r, seconds) for name, r in runners.items() if hasattr(r, "run")}
     for name, r in runners.items():
         if hasattr(r, "settle"):

@@ -135,3 +135,32 @@ def test_the_calls_compiled_ahead_are_the_calls_the_run_makes(scene, tmp_path, m
     assert simulate(prepared, tmp_path / "run.h5").status == "complete"
     assert len(ahead) == (3 if model.blocks.measure_prefetch else 2)
     assert set(made) == set(ahead)
+
+
+def test_the_benchmarks_compile_ahead_the_steps_their_runners_take(monkeypatch):
+    """``benchmarks.timing.interleaved`` hands ``compile_shared`` its softsim runners' step calls
+    (``Softsim.step_calls``) before it times them: the calls those runners then make, here a float64
+    and a float32 beam as the suite's precision section times them."""
+    from benchmarks import timing
+    from benchmarks.beam import Softsim, prepared_beam
+
+    made, ahead = [], []
+
+    def recording(make_call):
+        def make_and_record(*arguments):
+            kernel, kernel_arguments = make_call(*arguments)
+            made.append((kernel, compile_ahead.argument_types(kernel, kernel_arguments)))
+            return kernel, kernel_arguments
+        return make_and_record
+
+    def record_shared(calls):
+        ahead.extend((kernel, compile_ahead.argument_types(kernel, arguments)) for kernel, arguments in calls)
+        return 0
+
+    runners = {p: Softsim(prepared_beam(1_000, precision=p)) for p in ("float64", "float32")}
+    monkeypatch.setattr(compile_ahead, "compile_shared", record_shared)
+    monkeypatch.setattr(symplectic_euler, "advance_driver", recording(symplectic_euler.advance_driver))
+    rates = timing.interleaved(runners, 0.001, 1)
+    assert all(rate[0] > 0.0 for rate in rates.values())
+    assert len(ahead) == 2 and ahead[0] != ahead[1]
+    assert set(made) == set(ahead)
