@@ -69,11 +69,11 @@ class Softsim:
 
     def settle(self, steps):
         """Where the step measures whether to prefetch (``BlockLayout.measure_prefetch``), end its
-        trial with calls of ``steps`` steps (``PrefetchChoice``: the calibration's calls began it),
-        so that the timed rounds run the way a long run keeps.  Inside the rounds, half of the
-        trial's calls ran the slower way: on the 2M beam the median of 7 rounds came out at 136-143
-        M tet-steps/s, the faster way running 154-160."""
-        while prefetch_trial_running(self.model):
+        trial on the threads Numba is set to with calls of ``steps`` steps (``PrefetchChoice``: the
+        calibration's calls began it), so that the timed rounds run the way a long run keeps.
+        Inside the rounds, half of the trial's calls ran the slower way: on the 2M beam the median
+        of 7 rounds came out at 136-143 M tet-steps/s, the faster way running 154-160."""
+        while prefetch_trial_running(self.model, numba.get_num_threads()):
             self.run(steps)
 
     def positions(self):

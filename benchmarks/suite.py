@@ -118,9 +118,16 @@ def thread_scaling(sizes, seconds, repeats, threads):
             self.step_calls = sim.step_calls
 
         def run(self, steps):
+            self.on_threads(self.sim.run, steps)
+
+        def settle(self, steps):
+            # each thread count's step times its prefetches apart (PrefetchChoice)
+            self.on_threads(self.sim.settle, steps)
+
+        def on_threads(self, call, steps):
             numba.set_num_threads(self.n)
             try:
-                self.sim.run(steps)
+                call(steps)
             finally:
                 numba.set_num_threads(threads)
 

@@ -228,11 +228,16 @@ PART_SCHEDULE = PartSchedule()
 PREFETCH_CHOICES = weakref.WeakKeyDictionary()
 
 
-def prefetch_trial_running(model):
-    """Whether the step of ``model`` is still timing its prefetches against none for some thread
-    count (``PrefetchChoice.trying``): half of such a trial's calls run the slower way, so a caller
-    who times the step (a benchmark) ends the trial first.  False for a mesh that does not measure."""
-    return any(choice.trying for choice in PREFETCH_CHOICES.get(model.blocks, {}).values())
+def prefetch_trial_running(model, threads=None):
+    """Whether the step of ``model`` is still timing its prefetches against none (``PrefetchChoice.trying``)
+    for calls made on ``threads`` threads (``numba.get_num_threads()`` when calling ``step``; None: for
+    any thread count): half of such a trial's calls run the slower way, so a caller who times the
+    step (a benchmark) ends the trial first.  False for a mesh that does not measure."""
+    choices = PREFETCH_CHOICES.get(model.blocks, {})
+    if threads is not None:
+        choice = choices.get(step_threads(model.tet_count, threads, threading_layer()))
+        return choice is not None and choice.trying
+    return any(choice.trying for choice in choices.values())
 
 
 def advance_arguments(model, state, dt, damping, work, prefetch, step_count, threads, one_region):

@@ -228,3 +228,25 @@ def test_a_measured_prefetch_runs_both_ways_with_the_same_bits(monkeypatch):
         state = initial_state(prepared.scene, m)
         simulation.step(m, state, prepared.plan.dt, 1, 0.0, work_buffer(m))
         assert ways == expected and state.step == 1
+
+
+def test_a_prefetch_trial_is_asked_after_by_thread_count(monkeypatch):
+    """``prefetch_trial_running(model, threads)`` answers for the calls made on ``threads`` threads
+    alone (each thread count's step times its prefetches apart): a benchmark timing the step on
+    one thread and on two ends each trial with calls on its own thread count."""
+    from softsim import simulation
+    from softsim.integrators.symplectic_euler import PrefetchChoice, step_threads
+    from softsim.kernels.jit import threading_layer
+
+    model = _prepared_beam().model
+    one, two = (step_threads(model.tet_count, n, threading_layer()) for n in (1, 2))
+    assert (one, two) == (1, 2)
+    kept = PrefetchChoice()
+    kept.kept_calls_left = 1                            # its trial over, a way kept
+    monkeypatch.setitem(simulation.PREFETCH_CHOICES, model.blocks, {one: PrefetchChoice(), two: kept})
+    assert simulation.prefetch_trial_running(model, 1)
+    assert not simulation.prefetch_trial_running(model, 2)
+    assert simulation.prefetch_trial_running(model)
+    monkeypatch.setitem(simulation.PREFETCH_CHOICES, model.blocks, {two: kept})
+    assert not simulation.prefetch_trial_running(model, 1)     # no call on one thread yet
+    assert not simulation.prefetch_trial_running(model)
