@@ -102,6 +102,16 @@ def test_switched_off_nothing_is_compiled_shared(tmp_path):
     assert handed == 0 and in_this_process == [False, False] and compiled_here == [True, True]
 
 
+def recording(make_call, made):
+    """``make_call`` (returning a kernel and its arguments) that also appends the kernel and its
+    argument types to ``made``."""
+    def make_and_record(*arguments):
+        kernel, kernel_arguments = make_call(*arguments)
+        made.append((kernel, compile_ahead.argument_types(kernel, kernel_arguments)))
+        return kernel, kernel_arguments
+    return make_and_record
+
+
 @pytest.mark.parametrize("overrides", [
     {},
     "prefetch measured",
@@ -115,13 +125,6 @@ def test_the_calls_compiled_ahead_are_the_calls_the_run_makes(scene, tmp_path, m
     ``run_calls``: the types a run then calls them with (else the helper's work would be lost)."""
     made = []
 
-    def recording(make_call):
-        def make_and_record(*arguments):
-            kernel, kernel_arguments = make_call(*arguments)
-            made.append((kernel, compile_ahead.argument_types(kernel, kernel_arguments)))
-            return kernel, kernel_arguments
-        return make_and_record
-
     if overrides == "prefetch measured":     # as a large mesh's step: timed with prefetches and without
         monkeypatch.setattr(blocked, "PREFETCH_FROM_BYTES", 0)
         overrides = {}
@@ -130,8 +133,8 @@ def test_the_calls_compiled_ahead_are_the_calls_the_run_makes(scene, tmp_path, m
     assert model.blocks.measure_prefetch == (blocked.PREFETCH_FROM_BYTES == 0)
     ahead = [(kernel, compile_ahead.argument_types(kernel, arguments))
              for kernel, arguments in run_calls(prepared.scene, model)]
-    monkeypatch.setattr(symplectic_euler, "advance_driver", recording(symplectic_euler.advance_driver))
-    monkeypatch.setattr(guard, "element_measure_call", recording(guard.element_measure_call))
+    monkeypatch.setattr(symplectic_euler, "advance_driver", recording(symplectic_euler.advance_driver, made))
+    monkeypatch.setattr(guard, "element_measure_call", recording(guard.element_measure_call, made))
     assert simulate(prepared, tmp_path / "run.h5").status == "complete"
     assert len(ahead) == (3 if model.blocks.measure_prefetch else 2)
     assert set(made) == set(ahead)
@@ -146,20 +149,13 @@ def test_the_benchmarks_compile_ahead_the_steps_their_runners_take(monkeypatch):
 
     made, ahead = [], []
 
-    def recording(make_call):
-        def make_and_record(*arguments):
-            kernel, kernel_arguments = make_call(*arguments)
-            made.append((kernel, compile_ahead.argument_types(kernel, kernel_arguments)))
-            return kernel, kernel_arguments
-        return make_and_record
-
     def record_shared(calls):
         ahead.extend((kernel, compile_ahead.argument_types(kernel, arguments)) for kernel, arguments in calls)
         return 0
 
     runners = {p: Softsim(prepared_beam(1_000, precision=p)) for p in ("float64", "float32")}
     monkeypatch.setattr(compile_ahead, "compile_shared", record_shared)
-    monkeypatch.setattr(symplectic_euler, "advance_driver", recording(symplectic_euler.advance_driver))
+    monkeypatch.setattr(symplectic_euler, "advance_driver", recording(symplectic_euler.advance_driver, made))
     rates = timing.interleaved(runners, 0.001, 1)
     assert all(rate[0] > 0.0 for rate in rates.values())
     assert len(ahead) == 2 and ahead[0] != ahead[1]
