@@ -85,6 +85,34 @@ def test_add_corner_force_is_add_at(dtype):
     assert not forces[:, 3].any()
 
 
+@njit
+def add_four_lanes(forces, tets, tet_offset, buf, buf_offset, row_stride):
+    simd.add_four_lanes_corner_forces(forces, tets, tet_offset, buf, buf_offset, row_stride)
+
+
+@pytest.mark.parametrize("by_shuffles", [False, True])
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_four_lanes_add_their_corner_forces_lane_by_lane(dtype, by_shuffles, monkeypatch):
+    """Four lanes' corner rows built by shuffles or value by value (float64 picks by host,
+    ``simd.float64_scatter_by_shuffles``; float32 always shuffles) add the same bits as a loop over
+    the lanes and their corners, into rows that several corners share."""
+    monkeypatch.setattr(simd, "SCATTER_FLOAT64_BY_SHUFFLES", by_shuffles)
+    add = numba.njit(add_four_lanes.py_func)          # compiled afresh, the chosen way
+    rng = np.random.default_rng(4)
+    n, stride, tet_offset, buf_offset = 6, 9, 3, 5
+    tets = rng.integers(0, n, size=4 * stride).astype(np.uint32)
+    buf = rng.standard_normal(12 * stride + 8).astype(dtype)
+    forces = np.zeros((n, FORCE_COLUMNS), dtype=dtype)
+    forces[:, :3] = rng.standard_normal((n, 3))
+    expected = forces[:, :3].copy()
+    for lane in range(4):
+        for c in range(4):
+            expected[tets[tet_offset + c * stride + lane]] += buf[buf_offset + (3 * c + np.arange(3)) * stride + lane]
+    add(forces, tets, tet_offset, buf, buf_offset, stride)
+    np.testing.assert_array_equal(forces[:, :3], expected)
+    assert not forces[:, 3].any()
+
+
 @pytest.mark.parametrize("lane_count", [BLOCK, BLOCK - 5, 3])
 @pytest.mark.parametrize("uses_last_row", [False, True])
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])

@@ -17,8 +17,9 @@ emit the instructions directly:
 - ``add_corner_force``: a corner's three force components are added to a vertex's row of four
   (``(n, 4)`` vertex forces, the fourth always zero) as one vector read-modify-write: 4 stores a
   tet instead of 12.  Each component gets the same IEEE addition as a scalar one: the same bits.
-  ``add_four_lanes_corner_forces`` does so for four lanes at once, in float32 building their
-  rows by shuffles from vector loads of the rows of lanes.
+  ``add_four_lanes_corner_forces`` does so for four lanes at once, building their rows by
+  shuffles from vector loads of the rows of lanes: in float32 always, in float64 where the host
+  measured that faster (``float64_scatter_by_shuffles``).
 
 Measured per tet, one thread, data in L1/L2 (10k-tet beam, AVX-512, Zen 4, medians of 9): the
 gather by inserts 3.6-3.8 ns against 4.8 (float32 and float64 alike), the scatter 3.1-3.2 ns
@@ -280,6 +281,20 @@ def add_corner_force(typingctx, forces, vertex, buf, buf_offset, row_stride):
 
 # Lanes ``add_four_lanes_corner_forces`` adds at once.
 SCATTER_LANES = 4
+# None: ``add_four_lanes_corner_forces`` builds float64 rows by shuffles where
+# ``float64_scatter_by_shuffles`` says so; True / False: always / never (the tests compile both ways
+# on any host: both add the same bits on every target).
+SCATTER_FLOAT64_BY_SHUFFLES = None
+
+
+def float64_scatter_by_shuffles(context):
+    """Whether the CPU that Numba's ``context`` compiles for is an AMD Zen 4 or 5 (``znver4``,
+    ``znver5``), where the scatter built its float64 corner rows faster by shuffles than value by
+    value: the 100k beam's blocks, one thread, 3.3-4.1 against 4.1-5.3 ns a tet, the step 1.09-1.10x
+    (``benchmarks.phases``, three alternating pairs of processes, 2-core AMD EPYC with AVX-512).  On
+    an AVX-512 Xeon the shuffles took 3.81 against 3.02 ns; Zen 3 was not measured."""
+    cpu_name = getattr(context.codegen(), "_get_host_cpu_name", binding.get_host_cpu_name)()
+    return cpu_name in ("znver4", "znver5")
 
 
 @intrinsic
@@ -294,8 +309,8 @@ def add_four_lanes_corner_forces(typingctx, forces, tets, tet_offset, buf, buf_o
     from 12 scalar loads: the scatter of a 100k beam's blocks, one thread, 2.13 against 2.63 ns a
     tet; the step, against one lane at a time, one process, 2 threads, 1.05x at 100k tets and
     1.04x at 1M, one thread 1.09x at 100k.  In float64 the last of those shuffles, of 4 doubles,
-    cross the 128-bit halves of a register: the scatter alone took 3.81 against 3.02 ns a tet, so
-    float64 builds the rows value by value as ``add_corner_force`` does.
+    cross the 128-bit halves of a register, which costs a Xeon more than building the rows value
+    by value as ``add_corner_force`` does, and an AMD Zen 4 less (``float64_scatter_by_shuffles``).
     forces: (n, 4) C-contiguous float; tets: C-contiguous uint32 (``BlockLayout.tets``); buf: 1D,
     the dtype of ``forces``; offsets, stride: integers, ``row_stride`` both the distance between a
     lane's corners in ``tets`` and between rows of lanes in ``buf`` (``BLOCK`` in both).
@@ -318,6 +333,8 @@ def add_four_lanes_corner_forces(typingctx, forces, tets, tet_offset, buf, buf_o
         buf_offset = _int64(context, builder, buf_offset_arg, signature.args[4])
         stride = _int64(context, builder, row_stride_arg, signature.args[5])
         zero = _zero_row(float_type)
+        by_shuffles = size == 4 or (float64_scatter_by_shuffles(context) if SCATTER_FLOAT64_BY_SHUFFLES is None
+                                    else SCATTER_FLOAT64_BY_SHUFFLES)
 
         def row_offset(row, lane=0):
             return builder.add(buf_offset, builder.add(builder.mul(stride, ir.Constant(i64, row)),
@@ -325,7 +342,7 @@ def add_four_lanes_corner_forces(typingctx, forces, tets, tet_offset, buf, buf_o
 
         lane_rows = []                  # lane_rows[c][l]: lane l's (x, y, z, 0) of corner c
         for c in range(4):
-            if size == 8:               # float64: value by value (4 doubles: shuffles across halves)
+            if not by_shuffles:         # float64 off Zen 4: value by value (shuffles across halves)
                 lane_rows.append([_row_from_values(builder, buf_data, row_offset(3 * c, lane), stride, float_type, size)
                                   for lane in range(SCATTER_LANES)])
                 continue
