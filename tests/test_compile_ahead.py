@@ -14,6 +14,8 @@ from softsim.integrators import guard, symplectic_euler
 from softsim.kernels import blocked, compile_ahead
 from softsim.simulation import prepare, run_calls, simulate
 
+from recorded_calls import recording
+
 # A fresh process with a cache of its own (Numba reads NUMBA_CACHE_DIR as it loads): submits
 # ``kinetic_energy`` of float32 arrays and ``elastic_energy`` of one StVK tet stretched by 1.1
 # along x, its model id a compile-time constant (as the step's), which nothing else compiles in
@@ -102,16 +104,6 @@ def test_switched_off_nothing_is_compiled_shared(tmp_path):
     assert handed == 0 and in_this_process == [False, False] and compiled_here == [True, True]
 
 
-def recording(make_call, made):
-    """``make_call`` (returning a kernel and its arguments) that also appends the kernel and its
-    argument types to ``made``."""
-    def make_and_record(*arguments):
-        kernel, kernel_arguments = make_call(*arguments)
-        made.append((kernel, compile_ahead.argument_types(kernel, kernel_arguments)))
-        return kernel, kernel_arguments
-    return make_and_record
-
-
 @pytest.mark.parametrize("overrides", [
     {},
     "prefetch measured",
@@ -123,7 +115,7 @@ def recording(make_call, made):
 def test_the_calls_compiled_ahead_are_the_calls_the_run_makes(scene, tmp_path, monkeypatch, overrides):
     """The helper compiles the guard's measure and the step for the argument types of
     ``run_calls``: the types a run then calls them with (else the helper's work would be lost)."""
-    made = []
+    made = set()
 
     if overrides == "prefetch measured":     # as a large mesh's step: timed with prefetches and without
         monkeypatch.setattr(blocked, "PREFETCH_FROM_BYTES", 0)
@@ -147,7 +139,7 @@ def test_the_benchmarks_compile_ahead_the_steps_their_runners_take(monkeypatch):
     from benchmarks import timing
     from benchmarks.beam import Softsim, prepared_beam
 
-    made, ahead = [], []
+    made, ahead = set(), []
 
     def record_shared(calls):
         ahead.extend((kernel, compile_ahead.argument_types(kernel, arguments)) for kernel, arguments in calls)

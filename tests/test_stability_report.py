@@ -23,6 +23,8 @@ from softsim.integrators import guard, symplectic_euler
 from softsim.kernels.compile_ahead import argument_types
 from softsim.reports.stability import COLUMNS, catalogue_run_calls, limit_step_calls, stability_report
 
+from recorded_calls import recording
+
 SCENES = ("crushed-cube", "inverted-squashed", "large-dt-refuse", "large-dt-allow")
 REPORT_MODELS = ("stvk", "neohookean")
 CASE = LimitCase("linear", 1e5, 0.3, "structured")
@@ -37,17 +39,10 @@ def report(tmp_path_factory):
     out = tmp_path_factory.mktemp("stability")
     with pytest.MonkeyPatch.context() as patch:
         for module, name in ((symplectic_euler, "advance_driver"), (guard, "element_measure_call")):
-            patch.setattr(module, name, recording(getattr(module, name)))
+            patch.setattr(module, name, recording(getattr(module, name), REPORT_CALLS))
         return stability_report(out, quick=True, scenes=SCENES, models=REPORT_MODELS, cases=[CASE])
 
 
-def recording(make_call):
-    """``make_call`` (returning a kernel and its arguments), adding each call's types to REPORT_CALLS."""
-    def make_and_record(*arguments):
-        kernel, kernel_arguments = make_call(*arguments)
-        REPORT_CALLS.add((kernel, argument_types(kernel, kernel_arguments)))
-        return kernel, kernel_arguments
-    return make_and_record
 
 
 @pytest.fixture(scope="module")

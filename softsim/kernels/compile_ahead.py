@@ -239,7 +239,7 @@ def waited_seconds():
     return _waited_s
 
 
-def _compile_items(items, report, wanted=lambda k: True):
+def _compile_items(items, report, wanted):
     """The helper's work: compile each ``(module, qualname, signature)`` of ``items`` that
     ``wanted(k)`` (k its index) when its turn comes, calling ``report()`` after each (compiled or
     not); stops at the first one not wanted."""
