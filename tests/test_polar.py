@@ -16,8 +16,9 @@ import naive
 from softsim.kernels.blocked import (BLOCK, FALLBACK_VECTOR_MIN_LANES, NEWTON_VECTOR_MIN_LANES, ROW_F,
                                      ROW_STAGE, ROW_TRIANGULAR_VOLUME, ROW_X, ROWS, STAGE_JACOBI,
                                      TRIANGULAR_REST_ROWS, corotated_block, lanes_per_group)
-from softsim.kernels.polar3 import (NEWTON_STEP_TOLERANCE, jacobi_polar_rotation, newton_polar_finish,
-                                   newton_polar_rotation_jit, newton_polar_start_jit, polar_rotation)
+from softsim.kernels.polar3 import (NEWTON_NORM_TOLERANCE, NEWTON_ROTATION_ERROR, jacobi_polar_rotation,
+                                   newton_polar_certifies_jit, newton_polar_finish, newton_polar_rotation_jit,
+                                   newton_polar_start_jit, polar_rotation)
 from softsim.kernels.rotated_rest import triangular_rest_inverses
 from softsim.materials.models import corotated_energy_density, corotated_first_piola, model_lame_parameters
 from test_blocked_kernels import Body
@@ -125,6 +126,48 @@ def test_newton_rotation_is_the_reference_where_it_converges(name):
             assert not converged
     if name in ("near rotation", "nearly repeated"):
         assert accepted == 300
+
+
+def long_double_newton(F, steps):
+    """Newton's polar iterates ``X_1 .. X_steps`` of F (3, 3) in long double (x86's 64-bit
+    mantissa: rounding about 1e-19, far below the truncation errors of 5e-15 measured here):
+    ``X <- (X + cof(X) / det X) / 2``."""
+    X = np.array(F, dtype=np.longdouble)
+    iterates = []
+    for _ in range(steps):
+        C = np.array([np.cross(X[1], X[2]), np.cross(X[2], X[0]), np.cross(X[0], X[1])])
+        X = (X + C / np.sum(X[0] * C[0])) / 2
+        iterates.append(X)
+    return iterates
+
+
+@pytest.mark.skipif(np.finfo(np.longdouble).eps > 1e-18, reason="needs an extended long double (x86)")
+def test_an_iterate_whose_norm_passes_certifies_the_next_one():
+    """``newton_polar_certifies``: where ``X_k`` (k >= 1) passes, ``X_k+1`` lies within
+    ``NEWTON_ROTATION_ERROR`` of the polar factor, its truncation error measured in long double
+    against the iteration run to convergence.  Strains from 1e-5 to 1e-2 put ``|X_k|^2 - 3`` on
+    both sides of the tolerance for k = 1 to 3; some certified iterates come within a factor 10 of
+    the bound (a tolerance 10x looser certifies errors 100x larger and fails).  ``X_0 = F`` is not
+    covered: ``diag(1 + a, 1 - a, 1)`` passes for ``a = 1e-4`` while ``X_1`` is 1e6 times further
+    off than the bound."""
+    rng = np.random.default_rng(120)
+    certified = near_bound = 0
+    for a in 10.0 ** rng.uniform(-5.0, -2.0, 400):
+        F = rotation(rng) @ (np.eye(3) + a * rng.normal(size=(3, 3)))
+        iterates = long_double_newton(F, 12)
+        R = iterates[-1]
+        for k in (1, 2, 3):
+            if newton_polar_certifies_jit(tuple(iterates[k - 1].astype(np.float64).ravel()), 1.0):
+                error = float(np.sqrt(np.sum((iterates[k] - R) ** 2)))
+                assert error <= NEWTON_ROTATION_ERROR * (1 + 1e-6), (a, k, error)
+                certified += 1
+                near_bound += error > NEWTON_ROTATION_ERROR / 10
+            else:
+                assert float(np.sum(iterates[k - 1] ** 2)) - 3 > NEWTON_NORM_TOLERANCE * (1 - 1e-6)
+    assert certified > 300 and near_bound > 10, (certified, near_bound)
+    F = np.diag([1.0 + 1e-4, 1.0 - 1e-4, 1.0])
+    assert newton_polar_certifies_jit(tuple(F.ravel()), 1.0)
+    assert float(np.sqrt(np.sum((long_double_newton(F, 1)[0] - np.eye(3)) ** 2))) > 1e6 * NEWTON_ROTATION_ERROR
 
 
 def test_newton_carries_its_scale_safely_over_every_size_of_F():
@@ -237,11 +280,11 @@ def block_of(Fs, Dms=None):
 def newton_tolerance(F, A=np.eye(3)):
     """How far apart the corner forces ``-P(F) A^T`` may lie when the lane loop's R and the per-tet
     law's come from different counts of Newton's steps (``corotated_block``'s first steps): each R
-    is within ``NEWTON_STEP_TOLERANCE^2 / 2`` of the polar factor, so they differ by ``eps =
-    NEWTON_STEP_TOLERANCE^2`` at most, and ``P = 2 mu (F - R) + lam tr(R^T F - I) R`` by at most
+    is within ``NEWTON_ROTATION_ERROR`` of the polar factor, so they differ by ``eps = 2
+    NEWTON_ROTATION_ERROR`` at most, and ``P = 2 mu (F - R) + lam tr(R^T F - I) R`` by at most
     ``(2 mu + lam (sqrt(3) |F| + |tr(R^T F) - 3|)) eps`` (Frobenius); the forces by that times |A|."""
     R = rotation_of(F)
-    eps = NEWTON_STEP_TOLERANCE ** 2
+    eps = 2.0 * NEWTON_ROTATION_ERROR
     dP = (2.0 * MU + LAM * (np.sqrt(3.0) * np.linalg.norm(F) + abs(np.trace(R.T @ F) - 3.0))) * eps
     return dP * np.linalg.norm(A, 2)
 

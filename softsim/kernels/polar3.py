@@ -8,15 +8,15 @@ moved into the smallest singular value, so that ``R = U V^T`` has det +1 and max
 ``tr(R^T F)`` over SO(3).  Two ways to it:
 
 - ``newton_polar_rotation``: Newton's iteration ``X <- (X + X^-T) / 2`` from ``X = F`` (Higham
-  1986), which converges to the polar factor.  Where det F > 0 that is ``R``; the last step's size
-  tells whether it converged.  ``NEWTON_FIRST_STEPS`` steps (``newton_polar_start``) settle the
-  tets of small strain; the others take two more (``newton_polar_finish``, ``NEWTON_ITERATIONS``
-  in all).  Tets of smaller strains settle in three or two first steps
-  (``newton_polar_start_three``, ``newton_polar_start_two``): the lane loop takes those where the
-  block's last step showed them enough (``NEWTON_STEP_OVERDONE``).  About 70 flops a step and no
-  division (the iterate is carried scaled, the scale divided out once at the end): the fast path,
-  for the tets of a simulation that are neither inverted, nearly flat nor stretched by more than
-  about 3x.
+  1986), which converges to the polar factor.  Where det F > 0 that is ``R``; the norm of the
+  iterate before the last bounds the last one's error (``newton_polar_certifies``).
+  ``NEWTON_FIRST_STEPS`` steps (``newton_polar_start``) settle the tets of small strain; the others
+  take two more (``newton_polar_finish``, ``NEWTON_ITERATIONS`` in all).  Tets of smaller strains
+  settle in three or two first steps (``newton_polar_start_three``, ``newton_polar_start_two``):
+  the lane loop takes those where the block's last step showed them enough.  About 70 flops a
+  step and no division (the iterate is carried scaled, the scale divided out once at the end):
+  the fast path, for the tets of a simulation that are neither inverted, nearly flat nor
+  stretched by more than about 3x.
 - ``jacobi_rotation_and_stretch``: a Jacobi SVD without arrays or branches (after
   McAdams et al. 2011, "Computing the singular value decomposition of 3x3 matrices with minimal
   branching and elementary floating point operations"):
@@ -63,7 +63,9 @@ JACOBI_SWEEPS = 4          # documents the code: the sweeps are written out (jac
 #     6 steps    0        0        2e-3     7e-2
 #     7 steps    0        0        2e-4     2e-2
 # Where it passes, R is within 1e-14 of numpy.linalg.svd's.  A step costs about a tenth of the
-# Jacobi fallback; 6 steps keep that fallback rare at strains up to about 0.2.
+# Jacobi fallback; 6 steps keep that fallback rare at strains up to about 0.2.  (Measured with the
+# earlier test on the last step's length; the norm test, ``newton_polar_certifies``, fails 0, 0,
+# 1.8e-3 and 6.5e-2 of 10^5 samples after 6 steps, 2.6e-4, 0.22, 0.89 and 0.98 after 4.)
 NEWTON_ITERATIONS = 6      # documents the code: the steps are written out (newton_polar_finish)
 # The first stage stops after this many steps where they converged (``newton_polar_start``): share
 # of F = Q (I + a G) accepted after 4 steps (2 x 10^4 samples each): all up to a = 0.02, 99.98 % at
@@ -72,25 +74,23 @@ NEWTON_FIRST_STEPS = 4     # documents the code (newton_polar_start)
 # The fewest first steps a block of small strains takes (newton_polar_start_two; a block's count
 # adapts between the two: kernels.blocked.next_first_steps).
 NEWTON_MIN_FIRST_STEPS = 2
-# Largest last Newton step (Frobenius norm of X_k - X_k-1) accepted as converged: the error left in
-# R is about half its square, 5e-15.
-NEWTON_STEP_TOLERANCE = 1e-7
-# A last step at most this long (Frobenius) says that one step fewer would have converged too: Newton
-# converges quadratically (``|X_k - X_k-1|`` about ``|X_k-1 - X_k-2|^2 / 2``), so the step before was
-# about ``sqrt(2 x 2e-15) = 6e-8``, within NEWTON_STEP_TOLERANCE.  A converged iterate's own rounding
-# moves it by about 1e-16 per entry, 3e-16 in all, well below.  ``newton_polar_start_two`` and
-# ``newton_polar_start_three`` take fewer first steps; ``kernels.blocked.corotated_block`` chooses
-# per block, from the block's last step.  Measured (F = Q (I + a G) as above, 4000 samples): after
-# four steps every F up to a = 5e-3 counts as overdone, and three steps accept every F up to
-# a = 5e-3; after three, every F up to 5e-5 (99 % at 1e-4), and two accept every F up to 1e-4.
-NEWTON_STEP_OVERDONE = 2e-15
+# An iterate ``X_k`` after the first step certifies the next, ``X_k+1``, when ``|X_k|^2 - 3``
+# (Frobenius) is at most this: ``X_k+1`` then lies within ``NEWTON_ROTATION_ERROR`` of the polar
+# factor (``newton_polar_certifies``).  A stage accepts its last iterate when the one before
+# certifies it, and a block's lanes are ``overdone`` (one first step fewer would do) when the
+# iterate before that certifies its successor: ``kernels.blocked.corotated_block`` chooses each
+# block's first steps (2, 3 or 4) from its last step.  Newton converges quadratically, so a step
+# fewer needs an iterate about the square of this; a converged iterate's own rounding puts about
+# 1e-15 into ``|X|^2 - 3``.
+NEWTON_NORM_TOLERANCE = 2e-7
+NEWTON_ROTATION_ERROR = NEWTON_NORM_TOLERANCE ** 2 / 8     # 5e-15
 # The iterates are carried scaled, ``Z_k = c_k X_k`` (``newton_polar_step``), with ``c_4 = 2^85 d_0^64
 # d_1^16 d_2^4 d_3`` (``d_k = det X_k``, ``d_0 = det F``), which only sets the exponent of Z's
 # entries; products within a step reach about ``c_k``.  A result is accepted only while ``c``
 # stays within these bounds, where nothing has overflowed or fallen below the normal numbers, the
-# test's ``(1/c)^2`` included.  They lie beyond where the first four steps converge (F = a Q: c_4
-# from 2^23 to 2^147 for a from 0.8 to 1.25), so they decline only results that could not have
-# been accepted anyway; the last two steps start again from ``X_4`` at c = 1.
+# test's ``c^2`` and the result's ``1 / c`` included.  They lie beyond where the first four steps
+# converge (F = a Q: c_4 from 2^23 to 2^147 for a from 0.8 to 1.25), so they decline only results
+# that could not have been accepted anyway; the last two steps start again from ``X_4`` at c = 1.
 NEWTON_SCALE_MIN = 2.0 ** -500
 NEWTON_SCALE_MAX = 2.0 ** 500
 
@@ -260,68 +260,82 @@ def newton_polar_step(Z, c):
     c' X'``, ``c' = 2 c det Z``: the next iterate and its scale.  Dividing by ``det`` at every step,
     as ``X^-T = cof(X) / det X`` does, put a division's latency (about 20 cycles) on the chain of
     dependent operations of each step; the lane loop waited on it.  The scale is divided out once,
-    at the end (``newton_polar_result``).  Z of det 0 gives the zero matrix."""
+    at the end (``newton_polar_settle``).  Z of det 0 gives the zero matrix."""
     C = mat3_cofactor_inline(Z)
     det = Z[0] * C[0] + Z[1] * C[1] + Z[2] * C[2]
     return mat3_add_scaled_inline(mat3_scale_inline(C, c * c), Z, det), 2.0 * c * det, det
 
 
 @njit_inline
-def newton_polar_result(Z, c, W, det_W):
-    """``(inv, converged, overdone)`` from the last two iterates ``Z = c X_k`` and ``W = b X_k-1``,
-    ``c = 2 b det W``: ``inv = 1 / c``, so that ``X_k = inv Z``, accepted when the last step,
-    ``X_k - X_k-1 = inv (Z - 2 det W W)``, moved X by at most ``NEWTON_STEP_TOLERANCE`` (Frobenius)
-    and ``c`` lies within ``[NEWTON_SCALE_MIN, NEWTON_SCALE_MAX]``, where neither Z, the step nor
-    ``inv^2`` can overflow or fall below the normal numbers; ``overdone`` when the step was at most
-    ``NEWTON_STEP_OVERDONE`` as well (``X_k-1`` would have been accepted).  ``X_k`` is left to the
-    caller: the lane loop of ``kernels.blocked.corotated_block`` folds ``inv`` into the stress
-    instead."""
-    inv = 1.0 / c
-    D = mat3_add_scaled_inline(Z, W, -2.0 * det_W)   # c (X_k - X_k-1)
-    step = inv * inv * mat3_ddot_inline(D, D)
+def newton_polar_certifies(Z, c):
+    """Whether the next Newton step from ``X_k = Z / c`` (9-tuple, scale; ``k >= 1``, det F > 0)
+    lands within ``NEWTON_ROTATION_ERROR`` of the polar factor ``R`` (Frobenius): ``|X_k|^2 - 3 <=
+    NEWTON_NORM_TOLERANCE``, tested as ``Z : Z <= (3 + tolerance) c^2`` with ``c`` within
+    ``[NEWTON_SCALE_MIN, NEWTON_SCALE_MAX]`` (so that ``c^2`` neither overflows nor falls below the
+    normal numbers; a NaN or an overflow in Z fails the test).
+
+    A bound, not an estimate.  With ``F = U diag(s) V^T`` (U, V rotations, ``s_i > 0``) every
+    iterate is ``U diag(s_k) V^T``, ``s_k+1 = (s_k + 1 / s_k) / 2``, so ``s_k >= 1`` after the first
+    step and ``s_k+1 - 1 = (s_k - 1)^2 / (2 s_k) <= (s_k - 1)^2 / 2``.  With ``(s - 1)^2 = (s^2 -
+    1)^2 / (s + 1)^2 <= (s^2 - 1)^2 / 4``: ``|X_k+1 - R| <= sum(s_k+1 - 1) <= sum((s_k^2 - 1)^2) / 8
+    <= (sum(s_k^2 - 1))^2 / 8 = (|X_k|^2 - 3)^2 / 8``.  Not for ``X_0 = F``, whose singular values
+    may lie below 1."""
     in_range = c >= NEWTON_SCALE_MIN and c <= NEWTON_SCALE_MAX
-    converged = in_range and step <= NEWTON_STEP_TOLERANCE * NEWTON_STEP_TOLERANCE
-    return inv, converged, converged and step <= NEWTON_STEP_OVERDONE * NEWTON_STEP_OVERDONE
+    return in_range and mat3_ddot_inline(Z, Z) <= (3.0 + NEWTON_NORM_TOLERANCE) * (c * c)
 
 
 @njit_inline
 def newton_polar_settle(Z, c):
-    """``(Z, inv, det, converged, overdone)``: the last two Newton steps of a stage from ``Z = c
-    X_k`` (``det = det Z``, of the input), ``X_k+2 = inv Z``, and ``newton_polar_result``'s verdict
-    on them.  Every stage ends with it."""
+    """``(Z, inv, det, converged)``: the last two Newton steps of a stage from ``Z = c X_k``
+    (``det = det Z``, of the input), ``X_k+2 = inv Z``, accepted (``converged``) when ``X_k+1``
+    certifies ``X_k+2`` (``newton_polar_certifies``) and ``c`` lies within ``[NEWTON_SCALE_MIN,
+    NEWTON_SCALE_MAX]``, where ``inv`` is a normal number.  Every stage ends with it.  ``X_k+2`` is
+    left to the caller: the lane loop of ``kernels.blocked.corotated_block`` folds ``inv`` into the
+    stress instead.
+
+    The test reads ``X_k+1`` alone and is done before the last step: it replaced one on the last
+    step's length, ``|X_k+2 - X_k+1|``, which had to keep both iterates and took 10 more multiplies
+    or multiply-adds."""
     W, b, det = newton_polar_step(Z, c)             # W = b X_k+1
-    Z, c, det_W = newton_polar_step(W, b)           # Z = c X_k+2
-    inv, converged, overdone = newton_polar_result(Z, c, W, det_W)
-    return Z, inv, det, converged, overdone
+    certified = newton_polar_certifies(W, b)
+    Z, c, _ = newton_polar_step(W, b)               # Z = c X_k+2
+    converged = certified and c >= NEWTON_SCALE_MIN and c <= NEWTON_SCALE_MAX
+    return Z, 1.0 / c, det, converged
 
 
 @njit_inline
 def newton_polar_start(F):
     """``(Z, inv, det, converged, overdone)``: the first ``NEWTON_FIRST_STEPS`` steps of Newton's
     polar iteration from ``X = F``, ``X_4 = inv Z``, accepted (``converged``) when det F > 0 and
-    ``newton_polar_result`` accepts it: the tets of a small strain; ``overdone`` when ``X_3`` would
-    have been accepted too.  ``newton_polar_finish`` goes on from ``X_4`` and ``det = det F``."""
+    ``newton_polar_settle`` accepts it: the tets of a small strain; ``overdone`` when ``X_2``
+    certifies ``X_3`` (three steps would have been accepted).  ``newton_polar_finish`` goes on from
+    ``X_4`` and ``det = det F``."""
     Z, c, det = newton_polar_step(F, 1.0)
     Z, c, _ = newton_polar_step(Z, c)
-    Z, inv, _, converged, overdone = newton_polar_settle(Z, c)
+    overdone = newton_polar_certifies(Z, c)
+    Z, inv, _, converged = newton_polar_settle(Z, c)
     return Z, inv, det, det > 0.0 and converged, det > 0.0 and overdone
 
 
 @njit_inline
 def newton_polar_start_three(F):
     """``newton_polar_start`` with three steps, ``X_3 = inv Z``: the tets of a smaller strain (F =
-    Q (I + a G), G standard normal, 4000 samples: all of them up to a = 5e-3, 94 % at 1e-2)."""
+    Q (I + a G), G standard normal, 4000 samples: all of them up to a = 5e-3, 93 % at 1e-2);
+    ``overdone`` when ``X_1`` certifies ``X_2``."""
     Z, c, det = newton_polar_step(F, 1.0)
-    Z, inv, _, converged, overdone = newton_polar_settle(Z, c)
+    overdone = newton_polar_certifies(Z, c)
+    Z, inv, _, converged = newton_polar_settle(Z, c)
     return Z, inv, det, det > 0.0 and converged, det > 0.0 and overdone
 
 
 @njit_inline
 def newton_polar_start_two(F):
     """``newton_polar_start`` with two steps, ``X_2 = inv Z``: the tets of a still smaller strain, as
-    in a steel part (all of them up to a = 1e-4, 65 % at 2e-4)."""
-    Z, inv, det, converged, overdone = newton_polar_settle(F, 1.0)
-    return Z, inv, det, det > 0.0 and converged, det > 0.0 and overdone
+    in a steel part (99.6 % of them at a = 1e-4, 45 % at 2e-4).  Two steps are the fewest a block
+    takes (``NEWTON_MIN_FIRST_STEPS``), so ``overdone`` is always False: one step is never
+    certified (``newton_polar_certifies`` needs an iterate after the first)."""
+    Z, inv, det, converged = newton_polar_settle(F, 1.0)
+    return Z, inv, det, det > 0.0 and converged, False
 
 
 @njit_inline
@@ -329,7 +343,7 @@ def newton_polar_finish(X, det):
     """``(Z, inv, converged)``: two more Newton steps from ``X = X_k`` of a first stage (``det = det
     F``), ``X_k+2 = inv Z``, accepted as there: from ``newton_polar_start``'s X_4, steps 5 and 6.
     Otherwise X_k+2 is meaningless (possibly NaN): inverted, nearly flat or strongly stretched F."""
-    Z, inv, _, converged, _ = newton_polar_settle(X, 1.0)
+    Z, inv, _, converged = newton_polar_settle(X, 1.0)
     return Z, inv, det > 0.0 and converged
 
 
@@ -339,8 +353,8 @@ def newton_polar_rotation(F):
     ``newton_polar_start`` accepts it, else ``X_6`` from ``newton_polar_finish``.
 
     ``R`` is the rotation of ``jacobi_rotation_and_stretch`` (to rounding) when ``converged``: det F
-    > 0 (then the polar factor is that rotation) and the last step moved X by at most
-    ``NEWTON_STEP_TOLERANCE`` (Frobenius), so that the error left is about half its square.
+    > 0 (then the polar factor is that rotation) and the iterate before R certified it
+    (``newton_polar_certifies``): R lies within ``NEWTON_ROTATION_ERROR`` of it (Frobenius).
     Otherwise R is meaningless (possibly NaN): inverted, nearly flat or strongly stretched F.
     The lane loop of ``kernels.blocked.corotated_block`` takes the same two stages in two passes.
     """
@@ -388,3 +402,9 @@ def newton_polar_start_jit(F, steps=NEWTON_FIRST_STEPS):
 def newton_polar_rotation_jit(F):
     """``newton_polar_rotation`` as an ordinary jitted function (for tests)."""
     return newton_polar_rotation(F)
+
+
+@njit
+def newton_polar_certifies_jit(Z, c):
+    """``newton_polar_certifies`` as an ordinary jitted function (for tests)."""
+    return newton_polar_certifies(Z, c)
