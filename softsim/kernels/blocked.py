@@ -825,8 +825,9 @@ def corotated_block(rest, buf, lam, mu, upcoming, first_steps=NEWTON_FIRST_STEPS
     Returns the first steps for the block's next step (``next_first_steps``): one more (4 at most)
     where a lane that is not inverted needed the second stage, one fewer (2 at least) where every
     such lane would have settled with one step fewer (``overdone``: ``polar3.newton_polar_certifies``
-    on the iterate before the last but one).  A step changes the strains little, so a block of small strains soon takes two or three steps instead
-    of four; a wrong guess costs only the second stage, or the Jacobi SVD, for its lanes, once."""
+    passes on the iterate two before the last).  A step changes the strains little, so a block of
+    small strains soon takes two or three steps instead of four; a wrong guess costs only the
+    second stage, or the Jacobi SVD, for its lanes, once."""
     prefer_wide_vectors()
     lanes = group_lanes(rest)
     pending = 0
