@@ -129,8 +129,9 @@ def test_newton_rotation_is_the_reference_where_it_converges(name):
 
 
 def long_double_newton(F, steps):
-    """Newton's polar iterates ``X_1 .. X_steps`` of F (3, 3) in long double (x86's 64-bit
-    mantissa: rounding about 1e-19, far below the truncation errors of 5e-15 measured here):
+    """Newton's polar iterates ``X_1 .. X_steps`` of F (3, 3) in long double (x86's extended
+    precision rounds at about 1e-19, a quad long double finer still: far below the truncation
+    errors of 5e-15 measured here):
     ``X <- (X + cof(X) / det X) / 2``."""
     X = np.array(F, dtype=np.longdouble)
     iterates = []
@@ -141,7 +142,7 @@ def long_double_newton(F, steps):
     return iterates
 
 
-@pytest.mark.skipif(np.finfo(np.longdouble).eps > 1e-18, reason="needs an extended long double (x86)")
+@pytest.mark.skipif(np.finfo(np.longdouble).eps > 1e-18, reason="needs a long double finer than float64")
 def test_an_iterate_whose_norm_passes_certifies_the_next_one():
     """``newton_polar_certifies``: where ``X_k`` (k >= 1) passes, ``X_k+1`` lies within
     ``NEWTON_ROTATION_ERROR`` of the polar factor, its truncation error measured in long double
