@@ -4,7 +4,7 @@
 
 Measures, on this machine: throughput against tet count (10k to 2M) with the peers (Taichi and
 Warp CPU, when ``pip install ".[peers]"`` is installed) and the STREAM-triad bandwidth bound
-interleaved in one process; 1 against 2 threads; each material model; each optional feature; the
+interleaved in one process; the cost per tet-step of every size, all sizes interleaved; 1 against 2 threads; each material model; each optional feature; the
 time outside the kernels at a frame interval; peak memory per tet; start-up with a cold and a warm
 JIT cache; the Numba threading layers; packed SIMD instructions in the compiled lane loops; what
 the software prefetches buy on the large meshes.
@@ -35,7 +35,7 @@ def main(argv=None):
     parser.add_argument("--sizes", type=int, nargs="+", help="target tet counts of the throughput section")
     parser.add_argument("--repeats", type=int, help="interleaved rounds per measurement (default 7, quick 3)")
     parser.add_argument("--sections", nargs="+", help="run only these sections",
-                        choices=["check", "throughput", "threads", "models", "features", "overhead", "memory",
+                        choices=["check", "throughput", "sizes", "threads", "models", "features", "overhead", "memory",
                                  "startup", "layers", "simd", "precision", "prefetch"])
     args = parser.parse_args(argv)
 
@@ -58,6 +58,7 @@ def main(argv=None):
     sections = [
         ("check", lambda: suite.peer_check(10_000, threads)),
         ("throughput", lambda: suite.throughput(sizes, seconds, repeats, threads, stream)),
+        ("sizes", lambda: suite.cost_against_size(sizes, seconds, repeats, threads)),
         ("threads", lambda: suite.thread_scaling([s for s in sizes if s >= mid] or sizes[-1:], seconds, repeats, threads)),
         ("models", lambda: suite.models(mid, seconds, repeats, threads)),
         ("features", lambda: suite.features(mid, seconds, repeats, threads)),

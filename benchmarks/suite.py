@@ -108,6 +108,29 @@ def throughput(sizes, seconds, repeats, threads, stream):
     return rows
 
 
+def cost_against_size(sizes, seconds, repeats, threads):
+    """softsim alone at every size, all the sizes interleaved in the same rounds: the cost per
+    tet-step of each against the cheapest (the flat-cost target).  The throughput section times
+    one size after another, each with its peers, a minute or more apart, and a shared host's speed
+    drifts over such spans (the 100k beam's step on one thread moved between 14.2 and 17.8 ns a tet
+    within 30 s of one process); here the drift hits every size alike.  Every beam stays in memory
+    at once."""
+    sims = {target: Softsim(prepared_beam(target)) for target in sizes}
+    runners = {str(target): sim for target, sim in sims.items()}
+    rates = interleaved(runners, seconds, repeats)
+    median = {name: statistics.median(r) for name, r in rates.items()}
+    cheapest = max(median, key=median.get)
+    cheapest_tets = runners[cheapest].tet_count
+    rows = []
+    for name, sim in runners.items():
+        ratio = median_ratio(rates, cheapest, name)            # cost over the cheapest's, per round
+        log(f"  {sim.tet_count:>9} tets: {median[name]:.1f} ({1e3 / median[name]:.2f} ns per tet-step, "
+            f"{ratio:.3f}x the cheapest)")
+        rows.append(row("sizes", "softsim", sim.tet_count, "softsim", threads, median[name], ratio,
+                        f"cost / {cheapest_tets:,} tets'", note=f"{1e3 / median[name]:.2f} ns per tet-step"))
+    return rows
+
+
 def thread_scaling(sizes, seconds, repeats, threads):
     """softsim on 1 thread and on ``threads``, interleaved (``numba.set_num_threads`` per call)."""
     rows = []

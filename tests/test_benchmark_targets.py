@@ -93,6 +93,21 @@ def test_the_cost_is_judged_against_the_cheapest_size():
     assert all("does not span" in r["note"] for r in targets.targets(partial) if r["case"].startswith("cost"))
 
 
+def test_the_cost_is_judged_from_the_sizes_timed_together_where_the_run_has_them():
+    # timed one after another, the 2M beam looks twice as dear; timed together, 1.21x
+    rows = run_rows(rows={("throughput", "softsim", 1_967_880): {"rate": 100.0}})
+    costs = (1.05, 1.0, 0.98, 1.15, 1.19, 1.21)            # per-round medians: one may fall under 1
+    rows += [row("sizes", "softsim", tets, "softsim", 2, 200.0 / max(cost, 1.0), cost, "cost / 27,830 tets'")
+             for tets, cost in zip(SIZES, costs)]
+    judged = [r for r in targets.targets(rows) if r["case"] == "cost per tet-step against the cheapest size"]
+    assert [r["ratio"] for r in judged] == list(costs)
+    assert [r["note"].split(":")[0] for r in judged] == ["met"] * 5 + ["short"]
+    assert "27,830 tets" in judged[0]["note"] and "all sizes interleaved" in judged[0]["note"]
+    without = [r for r in rows if r["section"] != "sizes"]
+    judged = [r for r in targets.targets(without) if r["case"] == "cost per tet-step against the cheapest size"]
+    assert judged[-1]["ratio"] == pytest.approx(2.0) and "one after another" in judged[-1]["note"]
+
+
 def test_the_peer_table_is_that_of_the_host_kind():
     rows = run_rows(rows={("throughput", "warp", 1_006_215): {"rate": 29.9}})
     key = ("warp speed against the issue's table", 1_006_215)
