@@ -4,10 +4,11 @@
 
 Measures, on this machine: throughput against tet count (10k to 2M) with the peers (Taichi and
 Warp CPU, when ``pip install ".[peers]"`` is installed) and the STREAM-triad bandwidth bound
-interleaved in one process; the cost per tet-step of every size, all sizes interleaved; 1 against 2 threads; each material model; each optional feature; the
-time outside the kernels at a frame interval; peak memory per tet; start-up with a cold and a warm
-JIT cache; the Numba threading layers; packed SIMD instructions in the compiled lane loops; what
-the software prefetches buy on the large meshes.
+interleaved in one process; the cost per tet-step of every size, all sizes interleaved; 1 against
+2 threads; each material model; each optional feature; the time outside the kernels at a frame
+interval; peak memory per tet; start-up with a cold and a warm JIT cache; the Numba threading
+layers; packed SIMD instructions in the compiled lane loops; what the software prefetches buy on
+the large meshes.
 Peers are first checked to compute the same positions.  The issue's targets are judged from the
 run's rows (``benchmarks.targets``) and come first in ``results.md``.
 Writes ``results.csv``, ``results.md`` and ``throughput.png`` into the output folder.

@@ -115,8 +115,7 @@ def cost_against_size(sizes, seconds, repeats, threads):
     drifts over such spans (the 100k beam's step on one thread moved between 14.2 and 17.8 ns a tet
     within 30 s of one process); here the drift hits every size alike.  Every beam stays in memory
     at once."""
-    sims = {target: Softsim(prepared_beam(target)) for target in sizes}
-    runners = {str(target): sim for target, sim in sims.items()}
+    runners = {str(target): Softsim(prepared_beam(target)) for target in sizes}
     rates = interleaved(runners, seconds, repeats)
     median = {name: statistics.median(r) for name, r in rates.items()}
     cheapest = max(median, key=median.get)
