@@ -129,7 +129,7 @@ def test_the_calls_compiled_ahead_are_the_calls_the_run_makes(scene, tmp_path, m
     monkeypatch.setattr(guard, "element_measure_call", recording(guard.element_measure_call, made))
     assert simulate(prepared, tmp_path / "run.h5").status == "complete"
     assert len(ahead) == (3 if model.blocks.measure_prefetch else 2)
-    assert set(made) == set(ahead)
+    assert made == set(ahead)
 
 
 def test_the_benchmarks_compile_ahead_the_steps_their_runners_take(monkeypatch):
@@ -151,4 +151,4 @@ def test_the_benchmarks_compile_ahead_the_steps_their_runners_take(monkeypatch):
     rates = timing.interleaved(runners, 0.001, 1)
     assert all(rate[0] > 0.0 for rate in rates.values())
     assert len(ahead) == 2 and ahead[0] != ahead[1]
-    assert set(made) == set(ahead)
+    assert made == set(ahead)

@@ -43,8 +43,6 @@ def report(tmp_path_factory):
         return stability_report(out, quick=True, scenes=SCENES, models=REPORT_MODELS, cases=[CASE])
 
 
-
-
 @pytest.fixture(scope="module")
 def rows(report):
     with open(report.csv_path, newline="") as stream:
